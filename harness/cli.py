@@ -1,0 +1,182 @@
+"""The ``harness`` command line.
+
+    harness list                                  algorithms, envs and suites
+    harness run suite=NAME [key=value ...]        run a suite (or algo=... env=... ad hoc)
+    harness data fetch [--dest DIR] [--base-url URL]
+    harness data scripted [env=NAME] [out=DIR]    scripted demonstrations (demo_source=scripted)
+    harness bench env [envs=a,b] [steps=N]
+    harness bench train algo=medal env=sawyer_door members=E
+
+Bad input gets one line on stderr naming the problem and exit code 2; nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from harness import data as data_mod
+
+
+class UsageError(Exception):
+    """A user error: reported as one line, exit code 2."""
+
+
+def parse_overrides(items: list[str], allowed: set[str] | None = None) -> dict[str, str]:
+    """``key=value`` words into a dict (values stay strings; callers validate)."""
+    out: dict[str, str] = {}
+    for it in items:
+        if "=" not in it:
+            raise UsageError(f"expected key=value, got {it!r}")
+        k, v = it.split("=", 1)
+        if not k:
+            raise UsageError(f"empty key in {it!r}")
+        if allowed is not None and k not in allowed:
+            raise UsageError(f"unknown key {k!r}; known keys: {', '.join(sorted(allowed))}")
+        out[k] = v
+    return out
+
+
+def _csv(v: str | None) -> list[str] | None:
+    return [x for x in v.split(",") if x] if v else None
+
+
+def _int(key: str, v: str | None, default: int, minimum: int = 0) -> int:
+    """An integer override; accepts ``300000``, ``3e5`` and ``300_000``."""
+    if v is None:
+        return default
+    try:
+        x = float(v.replace("_", ""))
+    except ValueError:
+        raise UsageError(f"{key} must be an integer, got {v!r}") from None
+    if not x.is_integer():
+        raise UsageError(f"{key} must be an integer, got {v!r}")
+    if x < minimum:
+        raise UsageError(f"{key} must be >= {minimum}, got {v}")
+    return int(x)
+
+
+def cmd_list(args) -> int:
+    from harness.envs import ENVS
+
+    print("envs:")
+    for name in ENVS:
+        print(f"  {name}")
+    try:
+        from harness.registry import ALGORITHMS
+        from harness.suites import list_suites
+
+        print("algorithms:")
+        for name in ALGORITHMS:
+            print(f"  {name}")
+        print("suites:")
+        for name in list_suites():
+            print(f"  {name}")
+    except ImportError:
+        pass
+    return 0
+
+
+def cmd_data(args) -> int:
+    if args.data_cmd == "fetch":
+        dest = Path(args.dest) if args.dest else None
+        out = data_mod.fetch(dest=dest, base_url=args.base_url)
+        print(f"EARL demonstrations written to {out}")
+        return 0
+    if args.data_cmd == "scripted":
+        from harness.envs import ENVS
+        from harness.envs.experts import generate_demos
+
+        ov = parse_overrides(args.overrides, {"env", "envs", "out", "seed"})
+        envs = _csv(ov.get("envs") or ov.get("env")) or list(ENVS)
+        for e in envs:
+            if e not in ENVS:
+                raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+        out = Path(ov["out"]) if "out" in ov else data_mod.cache_dir()
+        seed = _int("seed", ov.get("seed"), 0)
+        counts = {"tabletop_manipulation": (12, 12), "sawyer_door": (5, 5), "sawyer_peg": (10, 20)}
+        for e in envs:
+            for direction, n in zip(data_mod.DIRECTIONS, counts[e]):
+                arrays = generate_demos(e, direction, n, seed)
+                path = out / "demos" / e / f"{direction}.npz"
+                data_mod.save_demos(path, arrays, source="scripted")
+                print(f"{path}: {n} scripted trajectories, {len(arrays['actions'])} transitions")
+        return 0
+    raise UsageError("usage: harness data {fetch,scripted}")
+
+
+def cmd_bench(args) -> int:
+    if args.what == "env":
+        from harness.bench import bench_env
+        from harness.envs import ENVS
+
+        ov = parse_overrides(args.overrides, {"envs", "env", "steps", "repeats"})
+        envs = _csv(ov.get("envs") or ov.get("env"))
+        for e in envs or []:
+            if e not in ENVS:
+                raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+        steps = _int("steps", ov.get("steps"), 0, 1) if "steps" in ov else None
+        bench_env(envs, steps, _int("repeats", ov.get("repeats"), 5, 1))
+        return 0
+    if args.what == "train":
+        from harness.bench_train import bench_train_cli
+
+        return bench_train_cli(parse_overrides(args.overrides))
+    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train")
+
+
+def cmd_run(args) -> int:
+    from harness.runner import run_cli
+
+    return run_cli(args.overrides, dry_run=args.dry_run)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="harness", description="EARL benchmark harness for reset-free RL")
+    p.add_argument("--data-dir", help="EARL data directory (default: HARNESS_DATA_DIR, cache, ../shared/earl)")
+    sub = p.add_subparsers(dest="cmd", required=True)
+    sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
+
+    r = sub.add_parser("run", help="run a suite or an ad-hoc set of runs (key=value overrides)")
+    r.add_argument("overrides", nargs="*")
+    r.add_argument("--dry-run", action="store_true", help="print the plan and exit")
+    r.set_defaults(fn=cmd_run)
+
+    d = sub.add_parser("data", help="fetch or generate demonstrations")
+    dsub = d.add_subparsers(dest="data_cmd", required=True)
+    f = dsub.add_parser("fetch", help="download EARL's demonstrations into the cache")
+    f.add_argument("--dest", help="target directory (default: the project cache)")
+    f.add_argument("--base-url", default=data_mod.EARL_REPO_URL)
+    s = dsub.add_parser("scripted", help="generate demonstrations with the scripted experts")
+    s.add_argument("overrides", nargs="*")
+    d.set_defaults(fn=cmd_data)
+
+    b = sub.add_parser("bench", help="throughput benchmarks")
+    b.add_argument("what", choices=["env", "train"])
+    b.add_argument("overrides", nargs="*")
+    b.set_defaults(fn=cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    import yaml
+
+    from harness.envs import UnknownEnvError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    data_mod.set_data_dir(args.data_dir)
+    try:
+        return args.fn(args)
+    except (UsageError, data_mod.DataNotFoundError, UnknownEnvError, yaml.YAMLError) as e:
+        msg = " ".join(str(e).split())
+        print(f"harness: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("harness: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,257 @@
+"""Finding, loading and fetching the EARL data (demonstrations, MuJoCo assets, published curves).
+
+Layout of an EARL data directory (see ``shared/earl/README.md``)::
+
+    demos/<env>/{forward,reverse}.npz     keys observations, actions, rewards, terminals, next_observations
+    assets/tabletop/...                   the tabletop MuJoCo model
+    assets/metaworld_earl/...             EARL's copies of the Sawyer models
+    reference/published_curves.csv.gz     published learning curves (long format)
+
+Search order (first hit wins): an explicit directory (``--data-dir`` / ``HARNESS_DATA_DIR``), the
+project-local cache (``HARNESS_CACHE_DIR`` or ``<project>/.cache/earl``, filled by
+``harness data fetch``), then ``../shared/earl`` beside the checkout.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+import tempfile
+import urllib.request
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ENV_NAMES = ("tabletop_manipulation", "sawyer_door", "sawyer_peg")
+DIRECTIONS = ("forward", "reverse")
+DEMO_KEYS = ("observations", "actions", "rewards", "terminals", "next_observations")
+EARL_REPO_URL = "https://raw.githubusercontent.com/architsharma97/earl_benchmark/main"
+
+
+class DataNotFoundError(RuntimeError):
+    """Raised with one line saying where we looked and how to fix it."""
+
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+
+
+def cache_dir() -> Path:
+    env = os.environ.get("HARNESS_CACHE_DIR")
+    return Path(env).expanduser() if env else PROJECT_ROOT / ".cache" / "earl"
+
+
+def candidate_dirs(explicit: str | os.PathLike | None = None) -> list[tuple[str, Path]]:
+    """The places searched, in order, with a label each."""
+    out: list[tuple[str, Path]] = []
+    if explicit:
+        out.append(("--data-dir", Path(explicit).expanduser()))
+    elif os.environ.get("HARNESS_DATA_DIR"):
+        out.append(("HARNESS_DATA_DIR", Path(os.environ["HARNESS_DATA_DIR"]).expanduser()))
+    out.append(("cache", cache_dir()))
+    out.append(("../shared/earl", PROJECT_ROOT.parent / "shared" / "earl"))
+    return out
+
+
+_explicit_default: str | None = None
+
+
+def set_data_dir(path: str | os.PathLike | None) -> None:
+    """Set the process-wide explicit data directory (the CLI's ``--data-dir``)."""
+    global _explicit_default
+    _explicit_default = str(path) if path else None
+
+
+def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None) -> Path:
+    """The first candidate directory holding ``need`` (a relative path such as ``demos`` or
+    ``assets/tabletop``). Raises :class:`DataNotFoundError` with one line otherwise."""
+    explicit = explicit or _explicit_default
+    cands = candidate_dirs(explicit)
+    for _, d in cands:
+        if (d / need).exists():
+            return d
+    looked = ", ".join(f"{label} ({d})" for label, d in cands)
+    raise DataNotFoundError(
+        f"EARL data '{need}' not found; looked in {looked}. "
+        "Fix: run `harness data fetch`, or set HARNESS_DATA_DIR / --data-dir to an EARL data directory."
+    )
+
+
+def asset_path(*parts: str) -> Path:
+    rel = "/".join(("assets",) + parts)
+    return find_data_dir(rel) / rel
+
+
+@dataclass(frozen=True)
+class Demos:
+    """A set of demonstrations of one env and direction, as flat transition arrays.
+
+    Each trajectory ends at a ``terminals`` row (its only reward-1 transition)."""
+
+    env: str
+    direction: str  # "forward" or "reverse" (backward)
+    observations: np.ndarray  # (N, obs_dim) float32
+    actions: np.ndarray  # (N, act_dim) float32
+    rewards: np.ndarray  # (N,) float32
+    terminals: np.ndarray  # (N,) bool
+    next_observations: np.ndarray  # (N, obs_dim) float32
+    source: str = "earl"  # "earl" or "scripted"
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def trajectory_slices(self) -> list[slice]:
+        ends = np.flatnonzero(self.terminals) + 1
+        if len(ends) == 0 or ends[-1] != len(self):
+            ends = np.append(ends, len(self))
+        starts = np.concatenate([[0], ends[:-1]])
+        return [slice(int(s), int(e)) for s, e in zip(starts, ends)]
+
+    def trajectories(self) -> list[dict[str, np.ndarray]]:
+        return [{k: getattr(self, k)[sl] for k in DEMO_KEYS} for sl in self.trajectory_slices()]
+
+
+def demo_path(env: str, direction: str, data_dir: Path | None = None) -> Path:
+    data_dir = data_dir or find_data_dir(f"demos/{env}/{direction}.npz")
+    return data_dir / "demos" / env / f"{direction}.npz"
+
+
+def load_demos(env: str, direction: str = "forward", data_dir: str | os.PathLike | None = None) -> Demos:
+    """Load EARL demonstrations (``direction`` forward or reverse) into a :class:`Demos`."""
+    if env not in ENV_NAMES:
+        raise ValueError(f"unknown env {env!r}; known: {', '.join(ENV_NAMES)}")
+    if direction not in DIRECTIONS:
+        raise ValueError(f"unknown demo direction {direction!r}; known: forward, reverse")
+    root = Path(data_dir) if data_dir else find_data_dir(f"demos/{env}/{direction}.npz")
+    path = root / "demos" / env / f"{direction}.npz"
+    if not path.exists():
+        raise DataNotFoundError(f"demonstrations not found: {path}")
+    with np.load(path) as z:
+        missing = [k for k in DEMO_KEYS if k not in z]
+        if missing:
+            raise DataNotFoundError(f"{path} lacks keys {missing}")
+        arr = {k: z[k] for k in DEMO_KEYS}
+        source = str(z["source"]) if "source" in z else "earl"
+    return Demos(
+        env=env,
+        direction=direction,
+        observations=arr["observations"].astype(np.float32),
+        actions=arr["actions"].astype(np.float32),
+        rewards=arr["rewards"].reshape(-1).astype(np.float32),
+        terminals=arr["terminals"].reshape(-1).astype(bool),
+        next_observations=arr["next_observations"].astype(np.float32),
+        source=source,
+    )
+
+
+def save_demos(path: Path, arrays: dict[str, np.ndarray], source: str) -> None:
+    """Write demos in EARL's npz layout, atomically (rewards/terminals as (N, 1))."""
+    out = {k: np.asarray(arrays[k]) for k in DEMO_KEYS}
+    out["rewards"] = out["rewards"].reshape(-1, 1).astype(np.float32)
+    out["terminals"] = out["terminals"].reshape(-1, 1).astype(bool)
+    for k in ("observations", "actions", "next_observations"):
+        out[k] = out[k].astype(np.float32)
+    atomic_write_bytes(path, _npz_bytes(out, source))
+
+
+def _npz_bytes(arrays: dict[str, np.ndarray], source: str) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, source=np.array(source), **arrays)
+    return buf.getvalue()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` via a temp file in the same directory and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+# ---------------------------------------------------------------------------------------------
+# harness data fetch
+# ---------------------------------------------------------------------------------------------
+
+
+class _NumpyOnlyUnpickler(pickle.Unpickler):
+    """EARL's demo pickles hold dicts of numpy arrays; refuse anything else."""
+
+    _ALLOWED = {
+        ("numpy.core.multiarray", "_reconstruct"),
+        ("numpy._core.multiarray", "_reconstruct"),
+        ("numpy", "ndarray"),
+        ("numpy", "dtype"),
+        ("numpy.core.multiarray", "scalar"),
+        ("numpy._core.multiarray", "scalar"),
+        ("builtins", "dict"),
+        ("builtins", "list"),
+        ("collections", "OrderedDict"),
+    }
+
+    def find_class(self, module, name):
+        if (module, name) in self._ALLOWED:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"refusing to load {module}.{name} from a demo pickle")
+
+
+def demo_pickle_to_arrays(raw: bytes) -> dict[str, np.ndarray]:
+    d = _NumpyOnlyUnpickler(io.BytesIO(raw)).load()
+    missing = [k for k in DEMO_KEYS if k not in d]
+    if missing:
+        raise ValueError(f"demo pickle lacks keys {missing}")
+    return {k: np.asarray(d[k]) for k in DEMO_KEYS}
+
+
+def remote_demo_path(env: str, direction: str) -> str:
+    return f"earl_benchmark/demonstrations/{env}/{direction}/demo_data.pkl"
+
+
+TABLETOP_ASSET_FILES = (
+    "tabletop_manipulation.xml", "coffee_mug.stl", "magnet.stl",
+    "darkwood.png", "light_wood_v3.png", "marble.png",
+)
+
+
+def _download(url: str, timeout: float = 60.0) -> bytes:
+    req = urllib.request.Request(url, headers={"User-Agent": "earl-harness"})
+    with urllib.request.urlopen(req, timeout=timeout) as r:  # noqa: S310 (http(s) URL built by us)
+        return r.read()
+
+
+def fetch(
+    dest: Path | None = None,
+    base_url: str = EARL_REPO_URL,
+    envs: tuple[str, ...] = ENV_NAMES,
+    assets: bool = True,
+    log=print,
+) -> Path:
+    """Download EARL's demonstration pickles (and the tabletop assets) into ``dest`` (the cache),
+    converting each pickle to the ``demos/<env>/<direction>.npz`` layout. Files are written
+    atomically; an interrupted fetch leaves no half file and can simply be re-run."""
+    dest = Path(dest) if dest else cache_dir()
+    base_url = base_url.rstrip("/")
+    for env in envs:
+        for direction in DIRECTIONS:
+            target = dest / "demos" / env / f"{direction}.npz"
+            url = f"{base_url}/{remote_demo_path(env, direction)}"
+            log(f"fetch {url}")
+            arrays = demo_pickle_to_arrays(_download(url))
+            save_demos(target, arrays, source="earl")
+            log(f"  -> {target} ({len(arrays['actions'])} transitions)")
+    if assets:
+        for name in TABLETOP_ASSET_FILES:
+            url = f"{base_url}/earl_benchmark/envs/tabletop_assets/{name}"
+            log(f"fetch {url}")
+            atomic_write_bytes(dest / "assets" / "tabletop" / name, _download(url))
+    return dest
+

@@ -1,0 +1,144 @@
+"""Data directory search order, demo loading, `harness data fetch` against a local HTTP server."""
+
+import functools
+import http.server
+import pickle
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from harness import data as data_mod
+from harness.cli import main
+from harness.data import DEMO_KEYS, DataNotFoundError, find_data_dir, load_demos
+
+from .conftest import requires_data
+
+SHARED = data_mod.PROJECT_ROOT.parent / "shared" / "earl"
+
+
+def _fake_data_dir(root: Path) -> Path:
+    (root / "demos").mkdir(parents=True)
+    return root
+
+
+def test_search_order(tmp_path, monkeypatch):
+    explicit = _fake_data_dir(tmp_path / "explicit")
+    cache = _fake_data_dir(tmp_path / "cache")
+    monkeypatch.setenv("HARNESS_CACHE_DIR", str(cache))
+    monkeypatch.delenv("HARNESS_DATA_DIR", raising=False)
+    assert find_data_dir("demos", explicit=explicit) == explicit
+    monkeypatch.setenv("HARNESS_DATA_DIR", str(explicit))
+    assert find_data_dir("demos") == explicit
+    monkeypatch.delenv("HARNESS_DATA_DIR")
+    assert find_data_dir("demos") == cache  # cache before ../shared/earl
+
+
+def test_not_found_is_one_clear_line(tmp_path, monkeypatch):
+    monkeypatch.setenv("HARNESS_CACHE_DIR", str(tmp_path / "none"))
+    monkeypatch.setattr(data_mod, "PROJECT_ROOT", tmp_path / "proj")
+    with pytest.raises(DataNotFoundError) as e:
+        find_data_dir("demos", explicit=tmp_path / "missing")
+    msg = str(e.value)
+    assert "\n" not in msg and "missing" in msg and "harness data fetch" in msg and "HARNESS_DATA_DIR" in msg
+
+
+@requires_data
+def test_load_demos_typed_and_split():
+    counts = {
+        ("tabletop_manipulation", "forward"): (12, 1278, 12),
+        ("sawyer_door", "reverse"): (5, 700, 14),
+        ("sawyer_peg", "reverse"): (20, 1132, 14),
+    }
+    for (env, d), (n_traj, n, obs_dim) in counts.items():
+        demos = load_demos(env, d)
+        assert len(demos) == n and demos.observations.shape == (n, obs_dim)
+        assert demos.rewards.shape == (n,) and demos.terminals.dtype == bool
+        trajs = demos.trajectories()
+        assert len(trajs) == n_traj
+        for tr in trajs:  # each trajectory ends at its only rewarded, terminal transition
+            assert tr["terminals"][-1] and tr["terminals"].sum() == 1 and tr["rewards"].sum() == 1
+            np.testing.assert_array_equal(tr["observations"][1:], tr["next_observations"][:-1])
+    assert demos.source == "earl"
+
+
+@pytest.fixture
+def earl_mirror(tmp_path):
+    """A directory laid out like the EARL GitHub repository (demo pickles + tabletop assets)."""
+    root = tmp_path / "mirror"
+    for env in data_mod.ENV_NAMES:
+        for d in data_mod.DIRECTIONS:
+            with np.load(SHARED / "demos" / env / f"{d}.npz") as z:
+                payload = {k: z[k] for k in DEMO_KEYS}
+            payload["infos"] = []
+            p = root / data_mod.remote_demo_path(env, d)
+            p.parent.mkdir(parents=True)
+            p.write_bytes(pickle.dumps(payload))
+    assets = root / "earl_benchmark" / "envs" / "tabletop_assets"
+    assets.mkdir(parents=True)
+    for name in data_mod.TABLETOP_ASSET_FILES:
+        (assets / name).write_bytes((SHARED / "assets" / "tabletop" / name).read_bytes())
+    return root
+
+
+@pytest.fixture
+def http_server(earl_mirror):
+    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(earl_mirror))
+    handler.log_message = lambda *a, **k: None
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    t = threading.Thread(target=srv.serve_forever, daemon=True)
+    t.start()
+    yield f"http://127.0.0.1:{srv.server_address[1]}"
+    srv.shutdown()
+
+
+@requires_data
+def test_fetch_from_local_http_server(http_server, tmp_path, monkeypatch, capsys):
+    dest = tmp_path / "cache"
+    assert main(["data", "fetch", "--dest", str(dest), "--base-url", http_server]) == 0
+    for env in data_mod.ENV_NAMES:
+        for d in data_mod.DIRECTIONS:
+            got, ref = load_demos(env, d, data_dir=dest), load_demos(env, d, data_dir=SHARED)
+            for k in DEMO_KEYS:
+                np.testing.assert_array_equal(getattr(got, k), getattr(ref, k))
+    assert (dest / "assets" / "tabletop" / "tabletop_manipulation.xml").exists()
+    assert not list(dest.rglob("*.tmp"))
+    monkeypatch.setenv("HARNESS_CACHE_DIR", str(dest))
+    monkeypatch.delenv("HARNESS_DATA_DIR", raising=False)
+    assert find_data_dir("demos") == dest  # the cache is found next time
+
+
+def test_fetch_refuses_non_numpy_pickles(tmp_path):
+    class Evil:
+        def __reduce__(self):
+            return (print, ("pwned",))
+
+    with pytest.raises(pickle.UnpicklingError):
+        data_mod.demo_pickle_to_arrays(pickle.dumps({"observations": Evil()}))
+
+
+def test_scripted_demos_cli(tmp_path):
+    out = tmp_path / "scripted"
+    assert main(["data", "scripted", "env=tabletop_manipulation", f"out={out}"]) == 0
+    demos = load_demos("tabletop_manipulation", "reverse", data_dir=out)
+    assert demos.source == "scripted" and len(demos.trajectories()) == 12
+    np.testing.assert_array_equal(demos.observations[0, 6:], [0, 0, 2.5, 0, -1, -1])  # goal = rho0
+
+
+@pytest.mark.parametrize(
+    "argv, needle",
+    [
+        (["data", "scripted", "env=nope"], "unknown env 'nope'"),
+        (["data", "scripted", "colour=red"], "unknown key 'colour'"),
+        (["data", "scripted", "seed=-1"], "seed must be >= 0"),
+        (["bench", "env", "steps=abc"], "steps must be an integer"),
+        (["bench", "env", "envs=foo"], "unknown env 'foo'"),
+    ],
+)
+def test_bad_input_one_line_exit_2(argv, needle, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and needle in err
+    assert not list(tmp_path.iterdir())  # nothing written
