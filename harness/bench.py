@@ -46,13 +46,13 @@ def env_rates(name: str, steps: int, repeats: int = 5, seed: int = 0) -> dict[st
 def bench_env(envs: list[str] | None = None, steps: int | None = None, repeats: int = 5, log=print) -> dict:
     envs = envs or list(ENVS)
     results = {}
-    log(f"{'env':<24}{'env steps/s':>14}{'wrapped':>12}{'overhead':>10}{'raw metaworld':>16}{'vs raw':>9}")
+    log(f"{'env':<24}{'env steps/s':>14}{'wrapped':>12}{'overhead':>10}{'raw metaworld':>16}{'wrapped/raw':>13}")
     for name in envs:
         n = steps or (50_000 if name == "tabletop_manipulation" else 2_000)
         r = env_rates(name, n, repeats)
         results[name] = r
         over = r["env"] / r["train_wrapped"] - 1.0
         raw = r.get("raw_metaworld")
-        raw_s = f"{raw:>16,.0f}{r['train_wrapped'] / raw - 1:>+9.1%}" if raw else f"{'-':>16}{'-':>9}"
+        raw_s = f"{raw:>16,.0f}{r['train_wrapped'] / raw:>12.2f}x" if raw else f"{'-':>16}{'-':>13}"
         log(f"{name:<24}{r['env']:>14,.0f}{r['train_wrapped']:>12,.0f}{over:>+10.1%}{raw_s}")
     return results

@@ -17,10 +17,10 @@ import sys
 from pathlib import Path
 
 from harness import data as data_mod
+from harness.suites import ConfigError, parse_int
 
 
-class UsageError(Exception):
-    """A user error: reported as one line, exit code 2."""
+UsageError = ConfigError  # a user error: reported as one line, exit code 2
 
 
 def parse_overrides(items: list[str], allowed: set[str] | None = None) -> dict[str, str]:
@@ -43,38 +43,27 @@ def _csv(v: str | None) -> list[str] | None:
 
 
 def _int(key: str, v: str | None, default: int, minimum: int = 0) -> int:
-    """An integer override; accepts ``300000``, ``3e5`` and ``300_000``."""
-    if v is None:
-        return default
-    try:
-        x = float(v.replace("_", ""))
-    except ValueError:
-        raise UsageError(f"{key} must be an integer, got {v!r}") from None
-    if not x.is_integer():
-        raise UsageError(f"{key} must be an integer, got {v!r}")
-    if x < minimum:
-        raise UsageError(f"{key} must be >= {minimum}, got {v}")
-    return int(x)
+    return default if v is None else parse_int(key, v, minimum)
 
 
 def cmd_list(args) -> int:
     from harness.envs import ENVS
 
+    from harness.registry import ALGORITHMS, PLANNED
+    from harness.suites import list_suites, load_suite
+
+    print("algorithms:")
+    for name, cls in ALGORITHMS.items():
+        doc = (cls.__doc__ or "").strip().splitlines()[0]
+        print(f"  {name:<14} {doc}")
+    for name in PLANNED:
+        print(f"  {name:<14} (not registered yet)")
     print("envs:")
     for name in ENVS:
         print(f"  {name}")
-    try:
-        from harness.registry import ALGORITHMS
-        from harness.suites import list_suites
-
-        print("algorithms:")
-        for name in ALGORITHMS:
-            print(f"  {name}")
-        print("suites:")
-        for name in list_suites():
-            print(f"  {name}")
-    except ImportError:
-        pass
+    print("suites:")
+    for name in list_suites():
+        print(f"  {name:<14} {load_suite(name)[1].get('description', '')}")
     return 0
 
 
@@ -169,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     data_mod.set_data_dir(args.data_dir)
     try:
         return args.fn(args)
-    except (UsageError, data_mod.DataNotFoundError, UnknownEnvError, yaml.YAMLError) as e:
+    except (ConfigError, data_mod.DataNotFoundError, UnknownEnvError, yaml.YAMLError) as e:
         msg = " ".join(str(e).split())
         print(f"harness: error: {msg}", file=sys.stderr)
         return 2

@@ -1,0 +1,147 @@
+"""The one interface between the EARL protocol loop (``harness/``) and an algorithm.
+
+An algorithm trains E independent *members* (seeds) in lockstep; every array it receives or
+returns has a leading member dimension E. The protocol loop owns the environments, hard resets,
+evaluation, results and checkpoints; the algorithm owns its controllers, goals, buffers and
+updates. Per training step the loop calls::
+
+    actions = algo.act(obs)                       # (E, obs_dim) -> (E, act_dim) in [-1, 1]
+    next_obs = envs.step(actions)
+    wants_reset = algo.observe(next_obs, hard_reset)   # store, switch controllers; (E,) bool
+    for members that hit H_T or want a reset: obs = env.reset(); algo.on_reset(obs, mask)
+
+and for evaluation ``algo.eval_act(obs)`` (deterministic forward policy on the eval env's own
+observation). Algorithms see the task only through :class:`Task` and :class:`DemoSet`, which
+``harness`` fills in (structural types: this package never imports ``harness``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar, Protocol
+
+import numpy as np
+import torch
+
+
+class Task(Protocol):
+    """What an algorithm may know about the env (``harness.envs.EnvSpec`` satisfies it)."""
+
+    name: str
+    state_dim: int
+    act_dim: int
+    success_idx: tuple[int, ...]
+    success_threshold: float
+    train_horizon: int
+    eval_horizon: int
+    initial_states: np.ndarray  # (n, state_dim)
+    goal_states: np.ndarray  # (n, state_dim)
+
+    @property
+    def obs_dim(self) -> int: ...
+
+    def is_success(self, obs): ...
+
+    def compute_reward(self, obs): ...
+
+
+class Demos(Protocol):
+    """Demonstrations as flat transition arrays (``harness.data.Demos`` satisfies it)."""
+
+    observations: np.ndarray
+    actions: np.ndarray
+    rewards: np.ndarray
+    terminals: np.ndarray
+    next_observations: np.ndarray
+    source: str
+
+
+@dataclass(frozen=True)
+class DemoSet:
+    forward: Demos
+    reverse: Demos
+
+
+@dataclass
+class AlgoConfig:
+    """Base of every algorithm's config dataclass; YAML defaults and ``key=value`` overrides fill it."""
+
+    @classmethod
+    def keys(cls) -> set[str]:
+        return {f.name for f in fields(cls)}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "AlgoConfig":
+        unknown = set(d) - cls.keys()
+        if unknown:
+            raise KeyError(f"unknown config key(s) {sorted(unknown)} for {cls.__name__}; known: {sorted(cls.keys())}")
+        out = cls()
+        for f in fields(cls):
+            if f.name in d:
+                setattr(out, f.name, _coerce(f.name, d[f.name], getattr(out, f.name)))
+        return out
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """Coerce a YAML/CLI value to the type of the field's default (bool/int/float/str/tuple)."""
+    if isinstance(default, bool):
+        if isinstance(value, str):
+            if value.lower() in ("true", "1", "yes", "on"):
+                return True
+            if value.lower() in ("false", "0", "no", "off"):
+                return False
+            raise ValueError(f"{name} must be a boolean, got {value!r}")
+        return bool(value)
+    if isinstance(default, int):
+        x = float(value)
+        if not x.is_integer():
+            raise ValueError(f"{name} must be an integer, got {value!r}")
+        return int(x)
+    if isinstance(default, float):
+        return float(value)
+    if isinstance(default, tuple):
+        return tuple(value)
+    return value
+
+
+class Algorithm(ABC):
+    """Base class of registered algorithms (see the module docstring for the call order).
+
+    Subclasses set ``Config`` and implement the abstract methods. ``seeds`` has one entry per
+    member; member ``i`` must behave exactly as an E = 1 run with seed ``seeds[i]``.
+    """
+
+    Config: ClassVar[type[AlgoConfig]]
+
+    def __init__(self, task: Task, demos: DemoSet, cfg: AlgoConfig, seeds: list[int], device: torch.device):
+        self.task, self.demos, self.cfg, self.seeds, self.device = task, demos, cfg, list(seeds), device
+        self.E = len(seeds)
+
+    @abstractmethod
+    def on_reset(self, obs: np.ndarray, mask: np.ndarray) -> None:
+        """Members in ``mask`` (E,) bool had their train env reset; ``obs`` (E, obs_dim)."""
+
+    @abstractmethod
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """Training actions for all members, (E, act_dim) float32 in [-1, 1]; may update."""
+
+    @abstractmethod
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        """Record the transitions just taken. ``hard_reset`` (E,) bool: the env hit H_T and will
+        be reset. Returns (E,) bool: members whose env the algorithm wants reset (episodic)."""
+
+    @abstractmethod
+    def eval_act(self, obs: np.ndarray) -> np.ndarray:
+        """Deterministic forward-policy actions on eval observations (E, obs_dim)."""
+
+    @abstractmethod
+    def state_dict(self) -> dict[str, Any]:
+        """Everything needed to continue bit-for-bit: networks, optimizers, buffers, RNGs, phase."""
+
+    @abstractmethod
+    def load_state_dict(self, state: dict[str, Any]) -> None: ...
+
+    def metrics(self) -> dict[str, np.ndarray]:
+        """Optional per-member diagnostics (E,) logged at each evaluation."""
+        return {}

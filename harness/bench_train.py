@@ -1,0 +1,74 @@
+"""``harness bench train algo=medal env=sawyer_door members=E [steps=N] [device=cpu]``.
+
+Training throughput after the seed phase: the protocol's own step (act -> env -> observe) with
+updates on, timed over ``steps`` steps, three times (median). Prints steps/s per member and in
+aggregate (E x per member), and where the time goes (env, act, update, discriminator, buffer,
+other). Evaluation is not included (it is a fixed ~3% of steps for EARL's schedule).
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+
+import torch
+
+from algorithms.api import DemoSet
+from harness.cli import UsageError, _int
+from harness.data import load_demos
+from harness.envs import ENVS, get_spec
+from harness.protocol import Interaction
+from harness.registry import ALGORITHMS
+from harness.suites import resolve_algo_config
+
+
+def bench_train(algo: str, env: str, members: int, steps: int, device: str, repeats: int = 3, seed_steps: int = 1000,
+                log=print) -> dict:
+    cls = ALGORITHMS[algo]
+    cfg = resolve_algo_config(cls.Config, algo, env, {"all": {"seed_steps": seed_steps}})
+    demos = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
+    seeds = list(range(members))
+    agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
+    inter = Interaction(env, seeds)
+    inter.start(agent)
+    for _ in range(seed_steps + 100):  # past the seed phase, updates on
+        inter.step(agent)
+    timers = getattr(agent, "timers", None)
+    rates, splits = [], []
+    for _ in range(repeats):
+        if timers is not None:
+            timers.enabled = True
+            timers.seconds.clear()
+        inter.timed, inter.env_seconds = True, 0.0
+        t = time.perf_counter()
+        for _ in range(steps):
+            inter.step(agent)
+        dt = time.perf_counter() - t
+        rates.append(steps / dt)
+        split = {"env": inter.env_seconds, **(dict(timers.seconds) if timers else {})}
+        split["other"] = max(dt - sum(split.values()), 0.0)
+        splits.append({k: v / dt for k, v in split.items()})
+    rate = statistics.median(rates)
+    share = {k: statistics.median(s.get(k, 0.0) for s in splits) for k in splits[0]}
+    log(f"bench train: algo={algo} env={env} members={members} device={device} steps={steps} x {repeats}")
+    log(f"  steps/s per member: {rate:,.1f}   aggregate: {rate * members:,.1f}   (runs: "
+        + ", ".join(f"{r:,.1f}" for r in rates) + ")")
+    log("  time split: " + "  ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1])))
+    return {"steps_per_s": rate, "aggregate": rate * members, "split": share, "runs": rates}
+
+
+def bench_train_cli(ov: dict[str, str]) -> int:
+    allowed = {"algo", "env", "members", "steps", "device", "repeats", "threads"}
+    unknown = set(ov) - allowed
+    if unknown:
+        raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
+    algo, env = ov.get("algo", "medal"), ov.get("env", "sawyer_door")
+    if algo not in ALGORITHMS:
+        raise UsageError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
+    if env not in ENVS:
+        raise UsageError(f"unknown env {env!r}; known envs: {', '.join(ENVS)}")
+    if "threads" in ov:
+        torch.set_num_threads(_int("threads", ov["threads"], 1, 1))
+    bench_train(algo, env, _int("members", ov.get("members"), 1, 1), _int("steps", ov.get("steps"), 1000, 1),
+                ov.get("device", "cpu"), _int("repeats", ov.get("repeats"), 3, 1))
+    return 0

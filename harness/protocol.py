@@ -1,0 +1,246 @@
+"""The EARL protocol loop: reset-free training, deployed-policy evaluation, results, checkpoints.
+
+One call of :func:`train` runs one *group*: E members (seeds) of the same (suite, env, algo,
+config) in lockstep, each with its own train env, eval env and results directory.
+
+Protocol (ALGORITHMS.md 1.2-1.3):
+
+- the train env is EARL's persistent-state env; it is reset only when H_T steps have elapsed
+  since its last reset (a hard reset, counted as an intervention) or when the algorithm asks
+  (episodic baselines such as oracle RL; also counted);
+- deployed evaluation at step 0 and every ``eval_every`` steps: ``eval_episodes`` episodes of
+  H_E steps in a separate eval env, s0 ~ rho0 (and a random task goal), the deterministic forward
+  policy; an episode is a success if any of its steps succeeds; eval data never reaches the
+  learner. Evaluation episodes are seeded from (member seed, step), so they do not depend on
+  when a run was checkpointed or resumed;
+- the continuing metric is the cumulative reward of the train env (its own task goal).
+
+Checkpoints are taken at evaluation steps that are multiples of ``checkpoint_every`` and at the
+end; they hold the algorithm's full state (networks, optimizers, buffers, RNGs, phase), the train
+envs' simulator and wrapper state, the current observations and the counters. Re-running the same
+run resumes from the checkpoint and truncates each results table to that step, so the results
+equal an uninterrupted run's (timing metrics aside).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from algorithms.api import Algorithm
+from harness.envs import make_env, make_train_env
+from harness.results import RunResults, run_dir, write_status
+
+CHECKPOINT_FILE = "checkpoint.pt"
+
+
+@dataclass
+class RunSpec:
+    """One group of runs: everything that determines its results."""
+
+    suite: str
+    env: str
+    algo: str
+    seeds: list[int]
+    steps: int
+    eval_every: int = 10_000
+    eval_episodes: int = 10
+    checkpoint_every: int = 50_000
+    device: str = "cpu"
+    results: str = "results"
+    meta: dict[str, Any] = field(default_factory=dict)  # config hash, git sha, demo source, ...
+
+    def member_dirs(self) -> list[Path]:
+        return [run_dir(Path(self.results), self.suite, self.env, self.algo, s) for s in self.seeds]
+
+    def checkpoint_path(self) -> Path:
+        seeds = "-".join(str(s) for s in self.seeds)
+        return Path(self.results) / self.suite / self.env / self.algo / "checkpoints" / f"seeds={seeds}" / CHECKPOINT_FILE
+
+
+@dataclass
+class Progress:
+    """What the live display shows for a group."""
+
+    step: int
+    total: int
+    steps_per_s: float
+    eta_s: float
+    success: list[float]
+
+
+class Interaction:
+    """The E train envs and the current observations: one protocol step at a time."""
+
+    def __init__(self, env: str, seeds: list[int]):
+        self.envs = [make_train_env(env) for _ in seeds]
+        self.seeds = seeds
+        self.obs: np.ndarray | None = None
+        self.cum_reward = np.zeros(len(seeds))
+        self.env_seconds = 0.0
+        self.timed = False
+
+    def start(self, algo: Algorithm) -> None:
+        self.obs = np.stack([env.reset(seed=s)[0] for env, s in zip(self.envs, self.seeds)])
+        algo.on_reset(self.obs, np.ones(len(self.envs), dtype=bool))
+
+    def step(self, algo: Algorithm) -> None:
+        """act -> env step -> observe -> reset the members that hit H_T or asked for a reset."""
+        E = len(self.envs)
+        actions = algo.act(self.obs)
+        next_obs = np.empty_like(self.obs)  # fresh each step: algorithms may keep references
+        hard = np.zeros(E, dtype=bool)
+        rewards = np.zeros(E)
+        t = time.perf_counter() if self.timed else 0.0
+        for i, env in enumerate(self.envs):
+            next_obs[i], rewards[i], _, hard[i], _ = env.step(actions[i])
+        if self.timed:
+            self.env_seconds += time.perf_counter() - t
+        self.cum_reward += rewards
+        reset = hard | algo.observe(next_obs, hard)
+        if reset.any():
+            for i in np.flatnonzero(reset):
+                next_obs[i] = self.envs[i].reset()[0]
+            algo.on_reset(next_obs, reset)
+        self.obs = next_obs
+
+    def interventions(self) -> np.ndarray:
+        return np.array([env.interventions for env in self.envs], dtype=np.float64)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "envs": [{"sim": env.unwrapped.get_sim_state(), "wrapper": env.get_wrapper_state()} for env in self.envs],
+            "obs": self.obs,
+            "cum_reward": self.cum_reward,
+        }
+
+    def load_state_dict(self, st: dict[str, Any]) -> None:
+        for env, e in zip(self.envs, st["envs"]):
+            env.unwrapped.set_sim_state(e["sim"])
+            env.set_wrapper_state(e["wrapper"])
+        self.obs, self.cum_reward = st["obs"], st["cum_reward"]
+
+
+def eval_seed(member_seed: int, step: int) -> int:
+    return (member_seed * 1_000_003 + step // 1000) % (2**31 - 1)
+
+
+def evaluate(algo: Algorithm, envs: list, seeds: list[int], step: int, episodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Deployed-policy evaluation of all members; returns (success rate, mean return), each (E,)."""
+    E = len(envs)
+    horizon = envs[0].spec_.eval_horizon
+    successes = np.zeros(E)
+    returns = np.zeros(E)
+    for ep in range(episodes):
+        obs = np.stack([env.reset(seed=eval_seed(s, step) if ep == 0 else None)[0] for env, s in zip(envs, seeds)])
+        hit = np.zeros(E, dtype=bool)
+        for _ in range(horizon):
+            actions = algo.eval_act(obs)
+            for i, env in enumerate(envs):
+                obs[i], r, _, _, info = env.step(actions[i])
+                returns[i] += r
+                hit[i] |= info["success"]
+        successes += hit
+    return successes / episodes, returns / episodes
+
+
+def _atomic_torch_save(obj: Any, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".ckpt.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def train(
+    spec: RunSpec,
+    algo: Algorithm,
+    on_progress: Callable[[Progress], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> list[RunResults]:
+    """Run (or resume) one group to ``spec.steps`` training steps. Returns the per-member results."""
+    E = len(spec.seeds)
+    inter = Interaction(spec.env, spec.seeds)
+    eval_envs = [make_env(spec.env) for _ in range(E)]
+    dirs = spec.member_dirs()
+    results = [
+        RunResults(d, {"suite": spec.suite, "env": spec.env, "algo": spec.algo, "seed": s}, {**spec.meta, "members": E})
+        for d, s in zip(dirs, spec.seeds)
+    ]
+    ckpt_path = spec.checkpoint_path()
+    status = "running"
+    if ckpt_path.exists():
+        ck = torch.load(ckpt_path, weights_only=False)
+        step, wall, last_success = ck["step"], ck["wall_s"], ck["last_success"]
+        algo.load_state_dict(ck["algo"])
+        inter.load_state_dict(ck["interaction"])
+        for r in results:
+            r.resume(step)
+        status = "resumed"
+    else:
+        step, wall = 0, 0.0
+        inter.start(algo)
+        last_success = [float("nan")] * E
+
+    def checkpoint() -> None:
+        state = {"step": step, "wall_s": wall, "last_success": last_success}
+        _atomic_torch_save({**state, "algo": algo.state_dict(), "interaction": inter.state_dict()}, ckpt_path)
+
+    def report(rate: float, state: str) -> None:
+        eta = (spec.steps - step) / rate if rate > 0 else math.inf
+        for d, succ in zip(dirs, last_success):
+            write_status(d, state=state, step=step, total=spec.steps, steps_per_s=rate, eta_s=eta, last_success=succ)
+        if on_progress:
+            on_progress(Progress(step, spec.steps, rate, eta, list(last_success)))
+
+    def log_eval(rate: float) -> None:
+        nonlocal last_success
+        succ, ret = evaluate(algo, eval_envs, spec.seeds, step, spec.eval_episodes)
+        last_success = succ.tolist()
+        n_inter = inter.interventions()
+        for i, r in enumerate(results):
+            r.append(step, {
+                "deployed_success": succ[i], "deployed_return": ret[i], "continuing_reward": inter.cum_reward[i],
+                "interventions": n_inter[i], "steps_per_s": rate, "wall_s": wall,
+            })
+        report(rate, status)
+
+    if step == 0 and not results[0].rows:
+        log_eval(0.0)
+    else:
+        report(0.0, status)
+
+    rate, t_mark, s_mark = 0.0, time.perf_counter(), step
+    wall0, t_start, t_last_report = wall, t_mark, t_mark
+    while step < spec.steps:
+        inter.step(algo)
+        step += 1
+        if step % spec.eval_every == 0 or step == spec.steps:
+            now = time.perf_counter()
+            rate = (step - s_mark) / max(now - t_mark, 1e-9)  # training steps/s, evaluation excluded
+            wall = wall0 + now - t_start
+            log_eval(rate)
+            if step % spec.checkpoint_every == 0 or step == spec.steps:
+                checkpoint()
+            t_mark, s_mark = time.perf_counter(), step
+            if should_stop and should_stop():
+                return results
+        elif step % 1000 == 0 and on_progress and time.perf_counter() - t_last_report > 10:
+            t_last_report = time.perf_counter()
+            rate = (step - s_mark) / max(t_last_report - t_mark, 1e-9)
+            on_progress(Progress(step, spec.steps, rate, (spec.steps - step) / max(rate, 1e-9), list(last_success)))
+    for d, succ in zip(dirs, last_success):
+        write_status(d, state="done", step=step, total=spec.steps, steps_per_s=rate, eta_s=0.0, last_success=succ)
+    return results

@@ -1,0 +1,119 @@
+"""The one results writer, and the loader.
+
+Each run (suite, env, algo, seed) owns a deterministic directory
+``<results>/<suite>/<env>/<algo>/seed=<k>/`` holding
+
+- ``evals.parquet``: the long table of this run (columns ``COLUMNS``), rewritten atomically at
+  every evaluation, so a reader never sees a half file and a resumed run truncates to its
+  checkpoint's step before appending (no row lost or duplicated);
+- ``run.yaml``: resolved config, command, git SHA, package versions, demo source, device, members;
+- ``status.json``: running / done / failed / resumed, step, steps/s, ETA, last success, error.
+
+``load(path)`` returns one DataFrame of every ``evals.parquet`` under ``path`` (corrupt files are
+named on stderr and skipped). The published curves (``reference/published_curves.csv.gz``) share
+the long format: ``load_published()`` renames ``method`` to ``algo`` and maps their metric names
+onto ours so the two concatenate.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from harness.data import atomic_write_bytes, find_data_dir
+
+COLUMNS = ["suite", "env", "algo", "seed", "step", "metric", "value"]
+META_COLUMNS = ["source", "config_hash", "git_sha", "demo_source", "device", "members", "study", "trial"]
+METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions", "steps_per_s", "wall_s")
+PUBLISHED_METRICS = {"deployed": "deployed_success", "continuing_cumulative_reward": "continuing_reward"}
+EVALS_FILE, RUN_FILE, STATUS_FILE = "evals.parquet", "run.yaml", "status.json"
+
+
+def run_dir(results: Path, suite: str, env: str, algo: str, seed: int) -> Path:
+    return Path(results) / suite / env / algo / f"seed={seed}"
+
+
+def _parquet_bytes(df: pd.DataFrame) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    df.to_parquet(buf, index=False)
+    return buf.getvalue()
+
+
+class RunResults:
+    """Rows of one run, kept in memory and written atomically after every append."""
+
+    def __init__(self, directory: Path, ident: dict[str, Any], meta: dict[str, Any]):
+        self.dir = Path(directory)
+        self.ident = ident  # suite, env, algo, seed
+        self.meta = {k: meta.get(k) for k in META_COLUMNS}
+        self.meta["source"] = self.meta.get("source") or "harness"
+        self.rows: list[dict[str, Any]] = []
+
+    @property
+    def path(self) -> Path:
+        return self.dir / EVALS_FILE
+
+    def resume(self, step: int) -> None:
+        """Keep the rows written up to ``step`` (the checkpoint's), drop any later ones."""
+        if self.path.exists():
+            df = pd.read_parquet(self.path)
+            self.rows = df[df["step"] <= step].to_dict("records")
+        else:
+            self.rows = []
+
+    def append(self, step: int, values: dict[str, float]) -> None:
+        for metric, value in values.items():
+            self.rows.append({**self.ident, "step": int(step), "metric": metric, "value": float(value), **self.meta})
+        self.flush()
+
+    def frame(self) -> pd.DataFrame:
+        df = pd.DataFrame(self.rows, columns=COLUMNS + META_COLUMNS)
+        return df.astype({"seed": "int64", "step": "int64", "value": "float64", "members": "Int64", "trial": "Int64"})
+
+    def flush(self) -> None:
+        atomic_write_bytes(self.path, _parquet_bytes(self.frame()))
+
+
+def write_status(directory: Path, **fields: Any) -> None:
+    fields.setdefault("updated", time.time())
+    atomic_write_bytes(Path(directory) / STATUS_FILE, json.dumps(fields, indent=1, default=str).encode())
+
+
+def read_status(directory: Path) -> dict[str, Any] | None:
+    p = Path(directory) / STATUS_FILE
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def load(path: str | Path, warn=None) -> pd.DataFrame:
+    """All results under ``path`` as one long DataFrame (empty with the right columns if none)."""
+    warn = warn or (lambda msg: print(msg, file=sys.stderr))
+    frames = []
+    root = Path(path)
+    files = [root] if root.is_file() else sorted(root.rglob(EVALS_FILE))
+    for f in files:
+        try:
+            frames.append(pd.read_parquet(f))
+        except Exception as e:  # a corrupt or foreign file: name it, skip it
+            warn(f"skipping unreadable results file {f}: {type(e).__name__}: {e}")
+    if not frames:
+        return pd.DataFrame(columns=COLUMNS + META_COLUMNS)
+    return pd.concat(frames, ignore_index=True)
+
+
+def load_published(data_dir: str | Path | None = None) -> pd.DataFrame:
+    """The published learning curves in our long format (``source`` says whose)."""
+    root = Path(data_dir) if data_dir else find_data_dir("reference/published_curves.csv.gz")
+    df = pd.read_csv(root / "reference" / "published_curves.csv.gz")
+    df = df.rename(columns={"method": "algo"})
+    df["metric"] = df["metric"].replace(PUBLISHED_METRICS)
+    return df

@@ -1,0 +1,310 @@
+"""``harness run``: resolve a suite (or an ad-hoc set) into run groups and execute them.
+
+Overrides (``key=value``): ``suite``, ``algo``/``algos``, ``env``/``envs``, ``seeds`` (a count or a
+comma list), ``steps``, ``eval_every``, ``eval_episodes``, ``checkpoint_every``, ``members`` (E, seeds
+trained in lockstep by one process), ``workers`` (parallel processes, default: cores), ``device``,
+``results`` (directory), and algorithm config as ``<algo>.<key>=value`` or ``all.<key>=value``.
+
+Everything is validated before anything is written; re-running the same command resumes every
+unfinished run from its checkpoint and skips finished ones.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+import traceback
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from harness.suites import ConfigError, Plan, as_plain, config_hash, load_suite, resolve_algo_config
+from harness.suites import parse_int as _int
+
+RUN_KEYS = {
+    "suite", "algo", "algos", "env", "envs", "seeds", "steps", "eval_every", "eval_episodes",
+    "checkpoint_every", "members", "workers", "device", "results",
+}
+DEFAULT_STEPS = {"tabletop_manipulation": 3_000_000, "sawyer_door": 5_000_000, "sawyer_peg": 8_000_000}
+PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
+
+
+def _list(v: Any) -> list[str]:
+    if isinstance(v, (list, tuple)):
+        return [str(x) for x in v]
+    return [x.strip() for x in str(v).split(",") if x.strip()]
+
+
+def _seeds(v: Any) -> list[int]:
+    if isinstance(v, (list, tuple)) or (isinstance(v, str) and "," in v):
+        seeds = [_int("seeds", x, 0) for x in _list(v)]
+        if len(set(seeds)) != len(seeds):
+            raise ConfigError(f"seeds must be distinct, got {v!r}")
+        return seeds
+    return list(range(_int("seeds", v, 1)))
+
+
+def _device(v: str) -> str:
+    try:
+        dev = torch.device(v)
+    except RuntimeError:
+        raise ConfigError(f"device must be a torch device such as cpu or cuda:0, got {v!r}") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {v!r} requested but CUDA is not available on this machine")
+    return v
+
+
+def git_sha() -> str:
+    root = Path(__file__).resolve().parent.parent
+    try:
+        out = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
+        return out.stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def package_versions() -> dict[str, str]:
+    out = {}
+    for p in PACKAGES:
+        try:
+            out[p] = importlib.metadata.version(p)
+        except importlib.metadata.PackageNotFoundError:
+            out[p] = "absent"
+    return out
+
+
+def build_plan(words: list[str]) -> Plan:
+    """Validate the overrides and resolve them into run groups (nothing is written)."""
+    from harness.data import load_demos
+    from harness.envs import ENVS
+    from harness.registry import ALGORITHMS, PLANNED
+
+    ov: dict[str, str] = {}
+    algo_ov: dict[str, dict[str, str]] = {}
+    for w in words:
+        if "=" not in w:
+            raise ConfigError(f"expected key=value, got {w!r}")
+        k, v = w.split("=", 1)
+        if "." in k:
+            scope, key = k.split(".", 1)
+            if scope != "all" and scope not in ALGORITHMS:
+                raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
+            algo_ov.setdefault(scope, {})[key] = v
+        elif k not in RUN_KEYS:
+            raise ConfigError(f"unknown key {k!r}; known keys: {', '.join(sorted(RUN_KEYS))} or <algo>.<key>")
+        else:
+            ov[k] = v
+
+    if "suite" in ov:
+        suite_name, suite = load_suite(ov["suite"])
+    else:
+        if not (ov.get("algo") or ov.get("algos")) or not (ov.get("env") or ov.get("envs")):
+            raise ConfigError("give suite=NAME, or algo=... and env=... for an ad-hoc run")
+        suite_name, suite = "adhoc", {}
+
+    algos = _list(ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
+    envs = _list(ov.get("envs") or ov.get("env") or suite.get("envs") or [])
+    for e in envs:
+        if e not in ENVS:
+            raise ConfigError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+    unknown = [a for a in algos if a not in ALGORITHMS and a not in PLANNED]
+    if unknown:
+        raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
+    plan = Plan(suite_name, unregistered=[a for a in algos if a not in ALGORITHMS])
+    algos = [a for a in algos if a in ALGORITHMS]
+
+    seeds = _seeds(ov.get("seeds", suite.get("seeds", 1)))
+    members = _int("members", ov.get("members", 1), 1)
+    eval_every = _int("eval_every", ov.get("eval_every", suite.get("eval_every", 10_000)), 1)
+    eval_episodes = _int("eval_episodes", ov.get("eval_episodes", suite.get("eval_episodes", 10)), 1)
+    ckpt = _int("checkpoint_every", ov.get("checkpoint_every", suite.get("checkpoint_every", 50_000)), 1)
+    if ckpt % eval_every:
+        raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
+    device = _device(ov.get("device", "cpu"))
+    results = ov.get("results", "results")
+    steps_cfg = ov.get("steps", suite.get("steps", DEFAULT_STEPS))
+    suite_cfg = suite.get("config") or {}
+    if not isinstance(suite_cfg, dict):
+        raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
+
+    for env in envs:
+        if isinstance(steps_cfg, dict):
+            if env not in steps_cfg:
+                raise ConfigError(f"suite gives no step budget for env {env!r}")
+            steps = _int(f"steps[{env}]", steps_cfg[env], 1)
+        else:
+            steps = _int("steps", steps_cfg, 1)
+        fwd = load_demos(env, "forward")  # fails early, with one line, if the data is missing
+        for algo in algos:
+            cls = ALGORITHMS[algo]
+            cfg = resolve_algo_config(cls.Config, algo, env, suite_cfg, algo_ov)
+            cfg_plain = as_plain(cfg)
+            protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
+            h = config_hash({"env": env, "algo": algo, "config": cfg_plain, "protocol": protocol, "demos": fwd.source})
+            for i in range(0, len(seeds), members):
+                plan.groups.append(
+                    {
+                        "suite": suite_name, "env": env, "algo": algo, "seeds": seeds[i : i + members],
+                        "steps": steps, "eval_every": eval_every, "eval_episodes": eval_episodes,
+                        "checkpoint_every": ckpt, "device": device, "results": results,
+                        "config": cfg_plain, "config_hash": h, "demo_source": fwd.source,
+                    }
+                )
+    workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1)
+    plan.workers = min(workers, max(len(plan.groups), 1))
+    _check_results_dirs(plan)
+    return plan
+
+
+def _check_results_dirs(plan: Plan) -> None:
+    """Refuse to mix runs of a different config into an existing results directory."""
+    from harness.results import RUN_FILE, run_dir
+
+    for g in plan.groups:
+        for s in g["seeds"]:
+            p = run_dir(Path(g["results"]), g["suite"], g["env"], g["algo"], s) / RUN_FILE
+            if p.exists():
+                old = yaml.safe_load(p.read_text()) or {}
+                if old.get("config_hash") != g["config_hash"]:
+                    raise ConfigError(
+                        f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
+                        f"{g['config_hash']}); choose another results= directory or suite name"
+                    )
+
+
+def run_group(group: dict[str, Any], command: str, queue=None, threads: int | None = None) -> str | None:
+    """Run one group to completion (resuming if a checkpoint exists). Returns an error line or None."""
+    from harness.data import atomic_write_bytes, load_demos
+    from harness.envs import get_spec
+    from harness.protocol import RunSpec, train
+    from harness.registry import ALGORITHMS
+    from harness.results import RUN_FILE, write_status
+
+    from algorithms.api import DemoSet
+
+    if threads:
+        torch.set_num_threads(threads)
+    spec = RunSpec(
+        suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"], steps=group["steps"],
+        eval_every=group["eval_every"], eval_episodes=group["eval_episodes"],
+        checkpoint_every=group["checkpoint_every"], device=group["device"], results=group["results"],
+        meta={"config_hash": group["config_hash"], "git_sha": git_sha(), "demo_source": group["demo_source"],
+              "device": group["device"]},
+    )
+    label = f"{group['env']}/{group['algo']} seeds={','.join(map(str, group['seeds']))}"
+    dirs = spec.member_dirs()
+    try:
+        meta = {
+            **{k: group[k] for k in ("suite", "env", "algo", "steps", "eval_every", "eval_episodes", "device")},
+            "group_seeds": group["seeds"], "config": group["config"], "config_hash": group["config_hash"],
+            "demo_source": group["demo_source"], "command": command, "git_sha": spec.meta["git_sha"],
+            "versions": package_versions(), "python": sys.version.split()[0],
+        }
+        for d, s in zip(dirs, group["seeds"]):
+            atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
+        cls = ALGORITHMS[group["algo"]]
+        demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
+        cfg = cls.Config.from_dict(group["config"])
+        algo = cls(get_spec(group["env"]), demos, cfg, group["seeds"], torch.device(group["device"]))
+
+        def on_progress(p):
+            msg = progress_line(label, p)
+            if queue is not None:
+                queue.put(msg)
+            else:
+                print(msg, flush=True)
+
+        train(spec, algo, on_progress)
+        return None
+    except Exception as e:  # noqa: BLE001 - recorded per run, the suite goes on
+        err = f"{type(e).__name__}: {' '.join(str(e).split())}"
+        for d in dirs:
+            write_status(d, state="failed", error=err, traceback=traceback.format_exc())
+        return f"{label}: {err}"
+
+
+def _fmt_time(s: float) -> str:
+    if not math.isfinite(s):
+        return "?"
+    s = int(s)
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+def progress_line(label: str, p) -> str:
+    succ = ",".join("-" if not np.isfinite(x) else f"{x:.2f}" for x in p.success)
+    pct = 100.0 * p.step / max(p.total, 1)
+    return (f"[{label}] {p.step:,}/{p.total:,} ({pct:.0f}%)  {p.steps_per_s:,.0f} steps/s  "
+            f"ETA {_fmt_time(p.eta_s)}  success {succ}")
+
+
+def print_plan(plan: Plan) -> None:
+    steps = sum(g["steps"] * len(g["seeds"]) for g in plan.groups)
+    print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g['seeds']) for g in plan.groups)} run(s), "
+          f"{steps:,} env steps in all, {plan.workers} worker(s)")
+    for g in plan.groups:
+        print(f"  {g['env']:<22} {g['algo']:<12} seeds={','.join(map(str, g['seeds'])):<10} steps={g['steps']:,} "
+              f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}")
+    rate = 150.0  # MEDAL steps/s per run on one CPU core (harness bench train)
+    est = steps / rate / max(plan.workers, 1)
+    print(f"estimated time at ~{rate:.0f} steps/s per run: {_fmt_time(est)}")
+
+
+def run_cli(words: list[str], dry_run: bool = False) -> int:
+    plan = build_plan(words)
+    for a in plan.unregistered:
+        print(f"harness: note: algorithm {a!r} of suite {plan.suite!r} is not registered yet; skipping it", file=sys.stderr)
+    print_plan(plan)
+    if dry_run or not plan.groups:
+        return 0
+    command = " ".join(["harness", "run", *map(shlex.quote, words)])
+    t0 = time.time()
+    errors: list[str] = []
+    if plan.workers == 1:
+        for g in plan.groups:
+            err = run_group(g, command)
+            if err:
+                print(f"harness: run failed: {err}", file=sys.stderr)
+                errors.append(err)
+    else:
+        errors = _run_pool(plan, command)
+    print(f"done: {len(plan.groups) - len(errors)}/{len(plan.groups)} group(s) in {_fmt_time(time.time() - t0)}; "
+          f"results in {plan.groups[0]['results']}")
+    return 1 if errors else 0
+
+
+def _run_pool(plan: Plan, command: str) -> list[str]:
+    import multiprocessing as mp
+    import queue as queue_mod
+
+    ctx = mp.get_context("spawn")
+    manager = ctx.Manager()
+    q = manager.Queue()
+    threads = max(1, (os.cpu_count() or 1) // plan.workers)
+    errors: list[str] = []
+    with ProcessPoolExecutor(max_workers=plan.workers, mp_context=ctx) as pool:
+        futures = [pool.submit(run_group, g, command, q, threads) for g in plan.groups]
+        pending = set(futures)
+        while pending:
+            try:
+                print(q.get(timeout=0.5), flush=True)
+            except queue_mod.Empty:
+                pass
+            for f in [f for f in pending if f.done()]:
+                pending.discard(f)
+                err = f.result()
+                if err:
+                    print(f"harness: run failed: {err}", file=sys.stderr)
+                    errors.append(err)
+        while not q.empty():
+            print(q.get(), flush=True)
+    manager.shutdown()
+    return errors

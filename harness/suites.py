@@ -1,0 +1,131 @@
+"""Suites and algorithm configs as data (YAML under ``suites/``), resolved into run groups.
+
+A suite file (``suites/<name>.yaml``)::
+
+    description: ...
+    algos: [naive, medal]
+    envs: [tabletop_manipulation, sawyer_door]
+    seeds: 5                       # count (seeds 0..4) or an explicit list
+    steps: {tabletop_manipulation: 3000000, sawyer_door: 5000000}   # or one number
+    eval_every: 10000
+    eval_episodes: 10
+    config:                        # algorithm config overrides: per algo, or `all`
+      all: {seed_steps: 10000}
+      medal: {switch_every: 300}
+
+Algorithm config = the algorithm's ``Config`` dataclass defaults (the card's values, documented in
+the algorithm module), then ``suites/algorithms/<algo>.yaml`` (per-env values, e.g. VaPRL's
+curriculum threshold: ``{defaults: {...}, env: {sawyer_door: {...}}}``), then the suite's
+``config``, then command-line ``<algo>.<key>=value`` / ``all.<key>=value`` overrides.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
+SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every", "config"}
+
+
+class ConfigError(ValueError):
+    """Bad suite/config input; reported as one line."""
+
+
+def parse_int(key: str, v: Any, minimum: int = 0) -> int:
+    """An integer setting; accepts ``300000``, ``3e5`` and ``300_000``."""
+    try:
+        x = float(str(v).replace("_", ""))
+    except ValueError:
+        raise ConfigError(f"{key} must be an integer, got {v!r}") from None
+    if not x.is_integer():
+        raise ConfigError(f"{key} must be an integer, got {v!r}")
+    if x < minimum:
+        raise ConfigError(f"{key} must be >= {minimum}, got {v}")
+    return int(x)
+
+
+def list_suites() -> list[str]:
+    return sorted(p.stem for p in SUITES_DIR.glob("*.yaml"))
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        problem = getattr(e, "problem", None) or type(e).__name__
+        raise ConfigError(f"malformed YAML in {path}{where}: {problem}") from None
+
+
+def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
+    """(suite name, suite dict) from a name in ``suites/`` or a path to a YAML file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        if not p.exists():
+            raise ConfigError(f"suite file not found: {p}")
+        path, name = p, p.stem
+    else:
+        path, name = SUITES_DIR / f"{name_or_path}.yaml", name_or_path
+        if not path.exists():
+            raise ConfigError(f"unknown suite {name_or_path!r}; known suites: {', '.join(list_suites())}")
+    d = _read_yaml(path)
+    if not isinstance(d, dict):
+        raise ConfigError(f"suite file {path} must be a mapping of keys to values")
+    unknown = set(d) - SUITE_KEYS
+    if unknown:
+        raise ConfigError(f"unknown key(s) {sorted(unknown)} in suite {path}; known: {sorted(SUITE_KEYS)}")
+    return name, d
+
+
+def algo_env_config(algo: str, env: str) -> dict[str, Any]:
+    """Values from ``suites/algorithms/<algo>.yaml`` for ``env`` (defaults, then env-specific)."""
+    path = SUITES_DIR / "algorithms" / f"{algo}.yaml"
+    if not path.exists():
+        return {}
+    d = _read_yaml(path) or {}
+    if not isinstance(d, dict) or set(d) - {"defaults", "env"}:
+        raise ConfigError(f"{path} must have only the keys 'defaults' and 'env'")
+    return {**(d.get("defaults") or {}), **((d.get("env") or {}).get(env) or {})}
+
+
+def resolve_algo_config(config_cls, algo: str, env: str, *layers: dict[str, Any]):
+    """The algorithm's config for ``env``: dataclass defaults, the algorithm YAML, then ``layers``
+    (each ``{"all": {...}, algo: {...}}``)."""
+    merged = algo_env_config(algo, env)
+    for layer in layers:
+        for scope in ("all", algo):
+            merged.update((layer or {}).get(scope) or {})
+    keys = config_cls.keys()
+    unknown = sorted(set(merged) - keys)
+    if unknown:
+        raise ConfigError(f"unknown config key(s) {unknown} for algorithm {algo!r}; known: {sorted(keys)}")
+    try:
+        return config_cls.from_dict(merged)
+    except (ValueError, TypeError) as e:
+        raise ConfigError(f"bad config value for algorithm {algo!r}: {e}") from None
+
+
+def config_hash(obj: Any) -> str:
+    blob = json.dumps(obj, sort_keys=True, default=str).encode()
+    return hashlib.sha256(blob).hexdigest()[:12]
+
+
+@dataclass
+class Plan:
+    """What ``harness run`` will do: one entry per (env, algo, member group)."""
+
+    suite: str
+    groups: list[dict[str, Any]] = field(default_factory=list)
+    unregistered: list[str] = field(default_factory=list)
+    workers: int = 1
+
+
+def as_plain(cfg) -> dict[str, Any]:
+    return json.loads(json.dumps(asdict(cfg), default=list))

@@ -1,0 +1,179 @@
+"""The EARL protocol loop: evaluation schedule and semantics, hard resets, results, exact resume."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from algorithms.api import AlgoConfig, Algorithm
+from harness.envs import get_spec, make_env
+from harness.protocol import RunSpec, evaluate, train
+from harness.results import load
+
+from .conftest import requires_data
+
+
+@dataclass
+class _Cfg(AlgoConfig):
+    reset_every: int = 0
+
+
+class Scripted(Algorithm):
+    """A test algorithm: the scripted tabletop expert; records what the loop tells it."""
+
+    Config = _Cfg
+
+    def __init__(self, *a, **k):
+        super().__init__(*a, **k)
+        from harness.envs.experts import tabletop_expert
+
+        self.expert = tabletop_expert
+        self.resets: list[tuple[int, np.ndarray]] = []
+        self.hard: list[int] = []
+        self.t = 0
+
+    def on_reset(self, obs, mask):
+        self.resets.append((self.t, mask.copy()))
+
+    def act(self, obs):
+        return np.stack([self.expert(o) for o in obs])
+
+    def observe(self, next_obs, hard_reset):
+        self.t += 1
+        if hard_reset.any():
+            self.hard.append(self.t)
+        want = np.zeros(self.E, dtype=bool)
+        if self.cfg.reset_every and self.t % self.cfg.reset_every == 0:
+            want[0] = True
+        return want
+
+    def eval_act(self, obs):
+        return np.stack([self.expert(o) for o in obs])
+
+    def state_dict(self):
+        return {"t": self.t}
+
+    def load_state_dict(self, state):
+        self.t = state["t"]
+
+
+def _spec(tmp_path, **kw):
+    base = dict(suite="t", env="tabletop_manipulation", algo="scripted", seeds=[0, 1], steps=1000, eval_every=250,
+                eval_episodes=3, checkpoint_every=500, results=str(tmp_path))
+    return RunSpec(**{**base, **kw})
+
+
+def _algo(seeds, **cfg):
+    return Scripted(get_spec("tabletop_manipulation"), None, _Cfg(**cfg), seeds, "cpu")
+
+
+def test_eval_schedule_metrics_and_layout(tmp_path):
+    spec = _spec(tmp_path)
+    train(spec, _algo(spec.seeds))
+    df = load(tmp_path)
+    assert sorted(df["step"].unique()) == [0, 250, 500, 750, 1000]  # step 0, then every eval_every
+    assert set(df["metric"]) == {"deployed_success", "deployed_return", "continuing_reward", "interventions",
+                                 "steps_per_s", "wall_s"}
+    for s in (0, 1):
+        d = tmp_path / "t" / "tabletop_manipulation" / "scripted" / f"seed={s}"
+        assert (d / "evals.parquet").exists() and (d / "status.json").exists()
+    succ = df[df.metric == "deployed_success"]
+    assert (succ.value == 1.0).all()  # the scripted expert solves every eval episode
+    assert (df[df.metric == "interventions"].value == 0).all()  # H_T = 200k never reached
+
+
+def test_hard_reset_every_train_horizon_counts_interventions(tmp_path, monkeypatch):
+    import harness.protocol as protocol
+    from harness.envs import make_train_env
+
+    monkeypatch.setattr(protocol, "make_train_env", lambda name: make_train_env(name, horizon=300))
+    spec = _spec(tmp_path, steps=1000, seeds=[0])
+    algo = _algo(spec.seeds)
+    train(spec, algo)
+    assert algo.hard == [300, 600, 900]  # the env reports H_T as truncation; the loop resets it
+    assert [t for t, _ in algo.resets] == [0, 300, 600, 900]
+    inter = load(tmp_path).query("metric == 'interventions'").set_index("step")["value"]
+    assert inter[250] == 0 and inter[500] == 1 and inter[750] == 2 and inter[1000] == 3
+
+
+def test_algorithm_requested_resets_are_interventions(tmp_path):
+    spec = _spec(tmp_path, seeds=[0, 1], steps=500)
+    algo = _algo(spec.seeds, reset_every=100)
+    train(spec, algo)
+    inter = load(tmp_path).query("metric == 'interventions' and step == 500").set_index("seed")["value"]
+    assert inter[0] == 5 and inter[1] == 0  # only member 0 asked
+
+
+def test_evaluate_any_step_success_and_deterministic_seeding():
+    class Still(Scripted):
+        def eval_act(self, obs):
+            return np.zeros((len(obs), 3), np.float32)
+
+    envs = [make_env("tabletop_manipulation") for _ in range(2)]
+    succ, ret = evaluate(Still(get_spec("tabletop_manipulation"), None, _Cfg(), [0, 1], "cpu"), envs, [0, 1], 0, 4)
+    assert (succ == 0).all() and (ret == 0).all()
+    algo = _algo([0, 1])
+    a = evaluate(algo, envs, [0, 1], 10_000, 4)
+    b = evaluate(algo, [make_env("tabletop_manipulation") for _ in range(2)], [0, 1], 10_000, 4)
+    np.testing.assert_array_equal(a[0], b[0])
+    assert (a[0] == 1).all() and (a[1] > 0).all()
+
+
+def _harness(args, results, **popen):
+    cmd = [sys.executable, "-m", "harness.cli", "run", *args, f"results={results}", "workers=1"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, **popen)
+
+
+RESUME_ARGS = ["algo=medal", "env=tabletop_manipulation", "seeds=1", "steps=1200", "eval_every=100",
+               "checkpoint_every=200", "eval_episodes=2", "all.seed_steps=100", "all.batch_size=32",
+               "all.buffer_capacity=20000", "medal.switch_every=40", "medal.disc_batch=32"]
+
+
+def _comparable(df: pd.DataFrame) -> pd.DataFrame:
+    df = df[~df.metric.isin(["steps_per_s", "wall_s"])]
+    return df.sort_values(["seed", "step", "metric"]).reset_index(drop=True)[["seed", "step", "metric", "value"]]
+
+
+@requires_data
+def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
+    ref = _harness(RESUME_ARGS, tmp_path / "ref")
+    out, _ = ref.communicate(timeout=600)
+    assert ref.returncode == 0, out
+    # a second run, killed at a random point after its first checkpoint, then re-run
+    ckpt = next((tmp_path / "ref").rglob("checkpoint.pt")).relative_to(tmp_path / "ref")
+    p = _harness(RESUME_ARGS, tmp_path / "killed")
+    deadline = time.time() + 600
+    while not (tmp_path / "killed" / ckpt).exists() and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(np.random.default_rng().uniform(0.0, 1.5))
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    again = _harness(RESUME_ARGS, tmp_path / "killed")
+    out, _ = again.communicate(timeout=600)
+    assert again.returncode == 0, out
+    a, b = _comparable(load(tmp_path / "ref")), _comparable(load(tmp_path / "killed"))
+    assert len(a) == len(b) == 13 * 4  # steps 0..1200 every 100, 4 deterministic metrics: no loss, no duplicate
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_results_are_joinable_with_published_curves(tmp_path):
+    from harness.results import load_published
+
+    spec = _spec(tmp_path, steps=250, seeds=[0])
+    train(spec, _algo(spec.seeds))
+    ours = load(tmp_path)
+    try:
+        pub = load_published()
+    except Exception as e:  # data dir missing
+        pytest.skip(str(e))
+    both = pd.concat([ours, pub], ignore_index=True)
+    assert {"harness", "earl_benchmark", "risc_paper"} <= set(both["source"])
+    assert "deployed_success" in set(pub["metric"]) and "algo" in pub.columns
