@@ -94,12 +94,18 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
             raise ValueError(f"{name} must be a boolean, got {value!r}")
         return bool(value)
     if isinstance(default, int):
-        x = float(value)
+        try:
+            x = float(str(value).replace("_", ""))
+        except ValueError:
+            raise ValueError(f"{name} must be an integer, got {value!r}") from None
         if not x.is_integer():
             raise ValueError(f"{name} must be an integer, got {value!r}")
         return int(x)
     if isinstance(default, float):
-        return float(value)
+        try:
+            return float(value)
+        except ValueError:
+            raise ValueError(f"{name} must be a number, got {value!r}") from None
     if isinstance(default, tuple):
         return tuple(value)
     return value

@@ -1,0 +1,125 @@
+"""`harness run` end to end: the smoke suite over the whole registry, seed batching, resume after
+SIGKILL for every registered algorithm, and bad input (one line, exit 2, nothing written)."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness.cli import main
+from harness.registry import ALGORITHMS
+from harness.results import load, read_status
+
+from .conftest import requires_data
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+
+
+def harness(*args, **kw):
+    return subprocess.Popen([sys.executable, "-m", "harness.cli", *args], env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, **kw)
+
+
+def finished(*args, timeout=1500):
+    p = harness(*args)
+    out, _ = p.communicate(timeout=timeout)
+    assert p.returncode == 0, out
+    return out
+
+
+@requires_data
+def test_smoke_suite_every_algorithm_every_env(tmp_path):
+    out = finished("run", "suite=smoke", f"results={tmp_path}", "workers=2")
+    df = load(tmp_path)
+    for algo in ALGORITHMS:
+        for env in ("tabletop_manipulation", "sawyer_door", "sawyer_peg"):
+            d = df[(df.algo == algo) & (df.env == env) & (df.metric == "deployed_success")]
+            assert sorted(d.step) == [0, 200, 400, 600], (algo, env, out)
+            st = read_status(tmp_path / "smoke" / env / algo / "seed=0")
+            assert st["state"] == "done" and st["step"] == 600
+    assert (df.source == "harness").all() and df.git_sha.notna().all() and (df.members == 1).all()
+
+
+@requires_data
+def test_seed_batched_members(tmp_path):
+    finished("run", "suite=smoke", "members=2", "seeds=2", "envs=tabletop_manipulation", f"results={tmp_path}",
+             "workers=1")
+    df = load(tmp_path)
+    for algo in ALGORITHMS:
+        d = df[(df.algo == algo) & (df.metric == "deployed_success")]
+        assert sorted(d.seed.unique()) == [0, 1] and (df[df.algo == algo].members == 2).all(), algo
+        assert len(d) == 8
+
+
+def _deterministic(df):
+    df = df[~df.metric.isin(["steps_per_s", "wall_s"])]
+    return df.sort_values(["seed", "step", "metric"]).reset_index(drop=True)[["seed", "step", "metric", "value"]]
+
+
+@requires_data
+@pytest.mark.parametrize("algo", list(ALGORITHMS))
+def test_resume_after_sigkill(algo, tmp_path):
+    args = ["run", f"algo={algo}", "env=tabletop_manipulation", "seeds=1", "steps=600", "eval_every=100",
+            "checkpoint_every=200", "eval_episodes=1", "all.seed_steps=100", "all.batch_size=32", "workers=1"]
+    finished(*args, f"results={tmp_path / 'ref'}")
+    p = harness(*args, f"results={tmp_path / 'killed'}")
+    deadline = time.time() + 600
+    while not list((tmp_path / "killed").rglob("checkpoint.pt")) and time.time() < deadline:
+        time.sleep(0.05)
+    time.sleep(np.random.default_rng().uniform(0.0, 1.0))
+    p.send_signal(signal.SIGKILL)
+    p.wait()
+    finished(*args, f"results={tmp_path / 'killed'}")
+    a, b = _deterministic(load(tmp_path / "ref")), _deterministic(load(tmp_path / "killed"))
+    assert len(a) == 7 * 4
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_dry_run_prints_plan(tmp_path, capsys):
+    assert main(["run", "suite=earl_sparse", f"results={tmp_path}", "--dry-run"]) == 0
+    out = capsys.readouterr()
+    assert "estimated time" in out.out and "sawyer_peg" in out.out
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "args, needle",
+    [
+        (["colour=red", "algo=medal", "env=sawyer_door"], "unknown key 'colour'"),
+        (["algo=nope", "env=sawyer_door"], "unknown algorithm"),
+        (["algo=medal", "env=nope"], "unknown env 'nope'"),
+        (["suite=nope"], "unknown suite 'nope'"),
+        (["algo=medal", "env=sawyer_door", "seeds=-1"], "seeds must be >= 1"),
+        (["algo=medal", "env=sawyer_door", "steps=lots"], "steps must be an integer"),
+        (["algo=medal", "env=sawyer_door", "medal.nope=3"], "unknown config key"),
+        (["algo=medal", "env=sawyer_door", "medal.switch_every=x"], "switch_every must be an integer"),
+        (["algo=medal", "env=sawyer_door", "eval_every=300", "checkpoint_every=1000"], "multiple of eval_every"),
+        (["algo=medal"], "give suite=NAME, or algo=... and env=..."),
+    ],
+)
+def test_bad_input_one_line_exit_2(args, needle, tmp_path, capsys):
+    assert main(["run", *args, f"results={tmp_path / 'r'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("harness: error:") and needle in err, err
+    assert not (tmp_path / "r").exists()
+
+
+def test_malformed_yaml_suite(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("algos: [medal\nenvs: sawyer_door\n")
+    assert main(["run", f"suite={bad}", f"results={tmp_path / 'r'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "malformed YAML" in err and "bad.yaml" in err
+    assert not (tmp_path / "r").exists()
+
+
+def test_list_shows_registry(capsys):
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in [*ALGORITHMS, "sawyer_peg", "earl_sparse", "smoke"]:
+        assert name in out
