@@ -65,7 +65,12 @@ class DemoSet:
 
 @dataclass
 class AlgoConfig:
-    """Base of every algorithm's config dataclass; YAML defaults and ``key=value`` overrides fill it."""
+    """Base of every algorithm's config dataclass; YAML defaults and ``key=value`` overrides fill it.
+
+    ``config_file``: the name of the per-env YAML (``suites/algorithms/<name>.yaml``) when it is not
+    the registered algorithm name (an ablation sharing its parent's per-env values)."""
+
+    config_file: ClassVar[str | None] = None
 
     @classmethod
     def keys(cls) -> set[str]:

@@ -7,13 +7,17 @@ from __future__ import annotations
 
 from algorithms.api import Algorithm
 from algorithms.medal import MEDAL
+from algorithms.risc import RISC, RISCNoTAB
+from algorithms.vaprl import VaPRL
 
 ALGORITHMS: dict[str, type[Algorithm]] = {
     "medal": MEDAL,
+    "vaprl": VaPRL,
+    "risc": RISC,
+    "risc_no_tab": RISCNoTAB,
 }
 
 #: methods of the paper and of RISC that suites may name before they are implemented
 PLANNED: tuple[str, ...] = (
-    "naive", "oracle", "fbrl", "r3l", "vaprl", "medal_logc", "fbrl_vice", "bc", "gail_naive", "gail_oracle",
-    "risc", "risc_no_tab",
+    "naive", "oracle", "fbrl", "r3l", "medal_logc", "fbrl_vice", "bc", "gail_naive", "gail_oracle",
 )

@@ -98,7 +98,7 @@ def algo_env_config(algo: str, env: str) -> dict[str, Any]:
 def resolve_algo_config(config_cls, algo: str, env: str, *layers: dict[str, Any]):
     """The algorithm's config for ``env``: dataclass defaults, the algorithm YAML, then ``layers``
     (each ``{"all": {...}, algo: {...}}``)."""
-    merged = algo_env_config(algo, env)
+    merged = algo_env_config(getattr(config_cls, "config_file", None) or algo, env)
     for layer in layers:
         for scope in ("all", algo):
             merged.update((layer or {}).get(scope) or {})

@@ -1,0 +1,224 @@
+"""Shared machinery of the goal-conditioned reset-free methods RISC (ALGORITHMS.md 14) and VaPRL (8).
+
+ONE goal-conditioned SAC agent serves both directions with ONE replay buffer (14.1, 14.5, 8.1):
+
+- observations are [s, g] with g the goal of the current phase; each member has its own direction
+  (FORWARD / BACKWARD), goal and phase step counter; every phase is one buffer segment;
+- the buffer starts with the forward AND the backward demos, each with its own goal half (14.5);
+- per step (14.6): act on [s_t, g] (uniform random actions during the first ``seed_steps`` steps,
+  RISC's ``min_replay_history``, when ``random_warmup``) and ask the early-switch hook on s_t ->
+  env step -> r = terminal = success([s_{t+1}, g]); truncated = not terminal and (phase limit or
+  early switch or hard reset) -> store -> after the warm-up one update on a shared batch (the
+  subclass's auxiliary critic first, then SAC) -> on terminal/truncated flip the direction and
+  start the next phase with the goal hook's goal; a hard reset starts a forward phase instead.
+
+Subclasses implement :meth:`GoalConditioned.phase_goals` and may override ``early_switch``
+(RISC), ``stored`` (VaPRL's relabelling) and ``update_aux``. :class:`AuxCritic` is a second
+member-batched twin-head critic of the SAC critic's architecture (RISC's success critic, VaPRL's
+value critic). The algorithms/core SAC keeps its critic trunk inside its own optimizer, so an
+auxiliary critic cannot share that trunk without core changes: it has a trunk of its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+import torch
+
+from algorithms.api import Algorithm, DemoSet, Task
+from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.core.buffer import SegmentReplayBuffer
+from algorithms.core.nets import generator_states, host_mask, load_generator_states, member_generators, member_randn
+from algorithms.core.optim import FlatMembers, MemberAdam, polyak_update
+from algorithms.core.sac import SAC, Actor, Critic, SACConfig
+
+FORWARD, BACKWARD = 0, 1
+DEMO_FIELDS = ("observations", "actions", "rewards", "terminals", "next_observations")
+# random-stream ids of the shared machinery (SAC uses 1 and 2; subclasses use 30 and up)
+BUFFER_STREAM, GOAL_STREAM, WARMUP_STREAM = 20, 21, 22
+
+
+@dataclass
+class GCConfig(SACAlgoConfig):
+    """SAC as used by RISC (14.2): log sigma clamp [-20, 10], timeout-aware bootstrapping."""
+
+    log_std_max: float = 10.0
+    bootstrap_on_truncation: bool = True
+    phase_step_limit: int = 200  # 200 / 300 / 200 (suites/algorithms/<algo>.yaml)
+    random_warmup: bool = True  # uniform actions during seed_steps (RISC min_replay_history)
+    value_actions: int = 5  # num_actions_value_computation
+
+
+class AuxCritic:
+    """Twin-head critic with the SAC critic's architecture (trunk, two heads on concat(features, a)), its own
+    Polyak target, Adam and per-member noise streams; ``squash`` maps head outputs (e.g. to [0, 1])."""
+
+    def __init__(self, obs_dim: int, act_dim: int, seeds: list[int], cfg: SACConfig, device, stream: int,
+                 squash: Callable[[torch.Tensor], torch.Tensor] | None = None):
+        E, self.act_dim, self.tau, self.device = len(seeds), act_dim, cfg.tau, torch.device(device)
+        init = member_generators(seeds, "cpu", stream)
+        self.net = Critic(E, obs_dim, act_dim, cfg, init).to(self.device)
+        self.target = Critic(E, obs_dim, act_dim, cfg, init).to(self.device).requires_grad_(False)
+        self.target.load_state_dict(self.net.state_dict())
+        self.opt = MemberAdam(list(self.net.parameters()), E, lr=cfg.lr)
+        self.target_flat = FlatMembers(list(self.target.parameters()), E)
+        self.update_gens = member_generators(seeds, self.device, stream + 1)
+        self.value_gens = member_generators(seeds, self.device, stream + 2)
+        self.squash = squash
+
+    def heads(self, obs: torch.Tensor, action: torch.Tensor, target: bool = False) -> torch.Tensor:
+        """(E, 2, B) head outputs (squashed) at obs (E, B, O), action (E, B, A)."""
+        x = (self.target if target else self.net)(obs, action)
+        return x if self.squash is None else self.squash(x)
+
+    @torch.no_grad()
+    def policy_value(self, actor: Actor, obs: torch.Tensor, mask=None, n: int = 5) -> torch.Tensor:
+        """Mean over n actions a ~ pi(.|o) of min_j head_j(o, a), for obs (E, N, O) -> (E, N) (8.1, 14.3).
+        Members outside ``mask`` draw no noise; their rows are meaningless."""
+        E, N, _ = obs.shape
+        rep = obs.repeat_interleave(n, dim=1)
+        eps = member_randn(self.value_gens, (N * n, self.act_dim), host_mask(mask, E), self.device)
+        action, _ = actor.sample(rep, eps)
+        return self.heads(rep, action).min(dim=1).values.view(E, N, n).mean(-1)
+
+    def update(self, actor: Actor, batch: dict, target_fn: Callable[[torch.Tensor], torch.Tensor], mask=None):
+        """One step on 0.5 * sum_j MSE(head_j(o, a), y), y = target_fn(target heads at (o', a')), a' ~ pi(.|o');
+        then Polyak. ``target_fn`` returns (E, B) (one target for both heads) or (E, 2, B)."""
+        E, B = batch["obs"].shape[:2]
+        mask_host = host_mask(mask, E)
+        with torch.no_grad():
+            eps = member_randn(self.update_gens, (B, self.act_dim), mask_host, self.device)
+            next_action, _ = actor.sample(batch["next_obs"], eps)
+            y = target_fn(self.heads(batch["next_obs"], next_action, target=True))
+            y = y.unsqueeze(1) if y.dim() == 2 else y
+        loss = 0.5 * (self.heads(batch["obs"], batch["action"]) - y).square().mean(dim=2).sum(dim=1)
+        mask_dev = None if mask_host is None else torch.as_tensor(mask_host, device=self.device)
+        self.opt.step(mask_dev, torch.autograd.grad(loss.sum(), self.opt.params))
+        polyak_update(self.target_flat, self.opt.members, self.tau, mask_dev)
+        return loss.detach()
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"net": self.net.state_dict(), "target": self.target.state_dict(), "opt": self.opt.state_dict(),
+                "gens": generator_states(self.update_gens + self.value_gens)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.net.load_state_dict(state["net"])
+        self.target.load_state_dict(state["target"])
+        self.opt.load_state_dict(state["opt"])
+        load_generator_states(self.update_gens + self.value_gens, state["gens"])
+
+
+class GoalConditioned(Algorithm):
+    """One goal-conditioned SAC agent for both directions; see the module docstring."""
+
+    Config = GCConfig
+
+    def __init__(self, task: Task, demos: DemoSet, cfg: GCConfig, seeds: list[int], device: torch.device):
+        super().__init__(task, demos, cfg, seeds, device)
+        E, O, A = self.E, task.obs_dim, task.act_dim
+        self.sac = SAC(O, A, seeds, cfg.sac(), device)
+        self.buffer = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=BUFFER_STREAM,
+                                          name="replay buffer")
+        for d in (demos.forward, demos.reverse):
+            self.buffer.add_demo(**{k: getattr(d, k) for k in DEMO_FIELDS})
+        self.goal_rngs = member_rngs(seeds, GOAL_STREAM)
+        self.warmup_rngs = member_rngs(seeds, WARMUP_STREAM)
+        self.direction = np.zeros(E, dtype=np.int64)
+        self.phase_steps = np.zeros(E, dtype=np.int64)  # actions taken in the current phase
+        self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
+        self.step = 0
+        self._obs = np.zeros((E, O), dtype=np.float32)
+        self._action = np.zeros((E, A), dtype=np.float32)
+        self._switch = np.zeros(E, dtype=bool)
+        self.timers = Timers(device)
+
+    # -- hooks -------------------------------------------------------------------------------------
+    def phase_goals(self, mask: np.ndarray) -> np.ndarray:
+        """Goals (E, state_dim) for the members in ``mask`` starting a phase in ``self.direction``."""
+        raise NotImplementedError
+
+    def early_switch(self, obs: torch.Tensor) -> np.ndarray:
+        """(E,) bool: end the phase after this step (decided on s_t, before the transition)."""
+        return np.zeros(self.E, dtype=bool)
+
+    def stored(self, obs: np.ndarray, next_obs: np.ndarray, end: np.ndarray) -> None:
+        """Called after each step is stored; ``end`` marks members whose phase just ended."""
+
+    def update_aux(self, batch: dict) -> None:
+        """Auxiliary-critic update on the SAC update's batch (before SAC's, as in 14.6 step 4)."""
+
+    # -- the protocol interface ------------------------------------------------------------------
+    def on_reset(self, obs: np.ndarray, mask: np.ndarray) -> None:
+        """Start (or hard reset): a forward phase (14.1)."""
+        self.direction[mask] = FORWARD
+        self.phase_steps[mask] = 0
+        self._begin_phase(obs, mask)
+
+    def _begin_phase(self, obs: np.ndarray, mask: np.ndarray) -> None:
+        self.goal[mask] = self.phase_goals(mask)[mask]
+        self.buffer.start_segment(with_goal(obs, self.goal, self.task.state_dim), mask)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        self._obs = with_goal(obs, self.goal, self.task.state_dim)
+        ot = torch.as_tensor(self._obs, device=self.device)
+        with self.timers("act"):
+            if self.cfg.random_warmup and self.step < self.cfg.seed_steps:
+                self._action = np.stack([r.uniform(-1.0, 1.0, self.task.act_dim) for r in self.warmup_rngs])
+                self._action = self._action.astype(np.float32)
+            else:
+                self._action = self.sac.act(ot).cpu().numpy()
+        with self.timers("switch"):
+            self._switch = self.early_switch(ot)
+        return self._action
+
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        no = with_goal(next_obs, self.goal, self.task.state_dim)
+        terminal = np.asarray(self.task.is_success(no), dtype=bool)
+        self.phase_steps += 1
+        limit = self.phase_steps >= self.cfg.phase_step_limit
+        truncated = ~terminal & (limit | self._switch | hard_reset)
+        end = terminal | truncated
+        with self.timers("buffer"):
+            self.buffer.add(self._action, terminal.astype(np.float32), no, terminal, truncated)
+            self.stored(self._obs, no, end)
+        if self.step >= self.cfg.seed_steps:
+            with self.timers("buffer"):
+                batch = self.buffer.sample(self.cfg.batch_size)
+            with self.timers("update"):
+                self.update_aux(batch)
+                self.sac.update(batch)
+        flip = end & ~hard_reset  # a hard reset starts a forward phase in on_reset
+        self.direction[flip] = 1 - self.direction[flip]
+        self.phase_steps[end] = 0
+        if flip.any():
+            with self.timers("goals"):
+                self._begin_phase(next_obs, flip)
+        self.step += 1
+        return np.zeros(self.E, dtype=bool)
+
+    def eval_act(self, obs: np.ndarray) -> np.ndarray:
+        return self.sac.act(torch.as_tensor(obs, device=self.device), deterministic=True).cpu().numpy()
+
+    # -- checkpointing -----------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {
+            "sac": self.sac.state_dict(), "buffer": self.buffer.state_dict(),
+            "goal_rngs": rng_states(self.goal_rngs), "warmup_rngs": rng_states(self.warmup_rngs),
+            "direction": self.direction.copy(), "phase_steps": self.phase_steps.copy(), "goal": self.goal.copy(),
+            "step": self.step,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.sac.load_state_dict(state["sac"])
+        self.buffer.load_state_dict(state["buffer"])
+        load_rng_states(self.goal_rngs, state["goal_rngs"])
+        load_rng_states(self.warmup_rngs, state["warmup_rngs"])
+        self.direction[:] = state["direction"]
+        self.phase_steps[:] = state["phase_steps"]
+        self.goal[:] = state["goal"]
+        self.step = state["step"]
+
+    def metrics(self) -> dict[str, np.ndarray]:
+        return {"backward_fraction": (self.direction == BACKWARD).astype(np.float64)}

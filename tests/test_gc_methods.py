@@ -1,0 +1,228 @@
+"""RISC (ALGORITHMS.md 14) and VaPRL (8): switching rule, success-critic target, bootstrap masks, subgoal
+curriculum, relabelled rewards, member independence."""
+
+import numpy as np
+import pytest
+import torch
+
+from algorithms.api import DemoSet
+from algorithms.goal_conditioned import BACKWARD, FORWARD
+from algorithms.risc import RISC, RISCConfig, RISCNoTAB, RISCNoTABConfig, success_target, switch_probability
+from algorithms.vaprl import VaPRL, VaPRLConfig, choose_subgoal, demo_time_index, subgoal_candidates
+from harness.data import load_demos
+from harness.envs import get_spec
+
+from .conftest import requires_data
+
+pytestmark = requires_data
+ENV = "tabletop_manipulation"
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+_DEMOS = {}
+
+
+def _demos(env=ENV):
+    if env not in _DEMOS:
+        _DEMOS[env] = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
+    return _DEMOS[env]
+
+
+def _make(cls, cfg_cls, seeds=(0,), env=ENV, **kw):
+    cfg = cfg_cls(**{**dict(seed_steps=50, batch_size=16, buffer_capacity=100_000), **kw})
+    return cls(get_spec(env), _demos(env), cfg, list(seeds), torch.device("cpu"))
+
+
+def _run(algo, env, seeds, steps):
+    """Protocol steps through harness.protocol.Interaction; the actions taken (steps, E, A)."""
+    from harness.protocol import Interaction
+
+    loop = Interaction(env, list(seeds))
+    loop.start(algo)
+    return np.stack([(loop.step(algo), algo._action.copy())[1] for _ in range(steps)])
+
+
+# -- RISC ------------------------------------------------------------------------------------------------
+def test_switch_probability_function():
+    t = np.arange(1, 301)
+    p = switch_probability(np.full(300, 0.8), t, 0.9, 100)
+    assert (p[t < 100] == 0).all()
+    np.testing.assert_allclose(p[t >= 100], 0.8 * (1 - 0.9 ** t[t >= 100]))
+
+
+@pytest.mark.parametrize("proportion", [1.0, 0.5])
+def test_switch_frequency_matches_rule(monkeypatch, proportion):
+    """Counted over many draws: 0 before minimum_steps, proportion * P * (1 - c^t) after (per-step redraw)."""
+    r = _make(RISC, RISCConfig, minimum_steps=3, conservative_factor=0.5, trajectory_proportion=proportion)
+    monkeypatch.setattr(r, "success_probability", lambda obs, mask=None: np.full(r.E, 0.6))
+    obs = torch.zeros(1, r.task.obs_dim)
+    for steps_done, expected in ((1, 0.0), (2, proportion * 0.6 * (1 - 0.5**3)), (4, proportion * 0.6 * (1 - 0.5**5))):
+        r.phase_steps[:] = steps_done  # t = steps_done + 1
+        n = 4000
+        freq = np.mean([r.early_switch(obs)[0] for _ in range(n)])
+        assert abs(freq - expected) < 4 * np.sqrt(max(expected * (1 - expected), 1e-9) / n) + 1e-9
+
+
+def test_success_critic_target_and_update(monkeypatch):
+    gamma = 0.99
+    term = torch.tensor([[True, False, False]])
+    heads = torch.tensor([[[0.2, 0.5, 0.9], [0.3, 0.4, 1.0]]])
+    torch.testing.assert_close(success_target(term, heads, gamma), torch.tensor([[1.0, gamma * 0.4, gamma * 0.9]]))
+    # the success critic's update uses exactly that target, truncated or not
+    r = _make(RISC, RISCConfig)
+    seen = {}
+    orig = r.success.update
+
+    def spy(actor, batch, target_fn, mask=None):
+        nxt = torch.rand(1, 2, batch["obs"].shape[1])
+        seen["y"], seen["want"] = target_fn(nxt), success_target(batch["terminal"], nxt, gamma)
+        return orig(actor, batch, target_fn, mask)
+
+    monkeypatch.setattr(r.success, "update", spy)
+    batch = r.buffer.sample(64)
+    r.update_aux(batch)
+    torch.testing.assert_close(seen["y"], seen["want"])
+    p = r.success_probability(torch.as_tensor(r.buffer.data["obs"][:, :1]).reshape(1, -1))
+    assert p.shape == (1,) and 0.0 <= p[0] <= 1.0
+
+
+def test_risc_vs_no_tab_differ_only_in_bootstrap_mask():
+    a, b = _make(RISC, RISCConfig), _make(RISCNoTAB, RISCNoTABConfig)
+    da, db = vars(a.cfg), vars(b.cfg)
+    assert {k for k in da if da[k] != db[k]} == {"bootstrap_on_truncation"}
+    assert a.cfg.bootstrap_on_truncation and not b.cfg.bootstrap_on_truncation
+    term = torch.tensor([[True, False, False, True]])
+    trunc = torch.tensor([[False, True, False, False]])
+    assert a.sac.bootstrap_mask(term, trunc).tolist() == [[0.0, 1.0, 1.0, 0.0]]
+    assert b.sac.bootstrap_mask(term, trunc).tolist() == [[0.0, 0.0, 1.0, 0.0]]
+    # same seed, same networks and batch: TD targets agree except on truncated transitions
+    batch = a.buffer.sample(256)
+    batch["truncated"] = torch.arange(256)[None] % 3 == 0
+    eps = torch.randn(1, 256, a.task.act_dim)
+    ya, yb = a.sac.td_target(batch, batch["reward"], eps), b.sac.td_target(batch, batch["reward"], eps)
+    same = ~batch["truncated"] | batch["terminal"]
+    assert torch.equal(ya[same], yb[same]) and not torch.equal(ya, yb)
+
+
+def test_risc_phases_goals_and_flags():
+    spec = get_spec(ENV)
+    r = _make(RISC, RISCConfig, phase_step_limit=5, minimum_steps=10**6, seed_steps=10**6)
+    far = np.concatenate([[1.0, 1.0, 1.0, 1.0, -1, -1], spec.goal_states[0]]).astype(np.float32)[None]
+    r.on_reset(far, np.ones(1, bool))
+    assert r.direction[0] == FORWARD and any(np.allclose(r.goal[0], g) for g in spec.goal_states)
+    n0 = r.buffer.size[0]
+    for _ in range(5):
+        r.act(far)
+        r.observe(far, np.zeros(1, bool))
+    assert r.direction[0] == BACKWARD and np.allclose(r.goal[0], spec.initial_states[0])
+    d = r.buffer.data
+    assert d["truncated"][0, n0 + 4] and not d["terminal"][0, n0 + 4]  # phase limit: truncated, not terminal
+    assert d["first"][0, n0 + 5]  # the backward phase is a new segment
+    # reaching the backward goal: terminal, flip to forward
+    home = np.concatenate([spec.initial_states[0], spec.goal_states[0]]).astype(np.float32)[None]
+    r.act(far)
+    r.observe(home, np.zeros(1, bool))
+    assert d["terminal"][0, n0 + 6] and d["reward"][0, n0 + 6] == 1.0 and r.direction[0] == FORWARD
+
+
+def test_warmup_actions_are_uniform():
+    r = _make(RISC, RISCConfig, seed_steps=10**6)
+    o = np.zeros((1, r.task.obs_dim), np.float32)
+    r.on_reset(o, np.ones(1, bool))
+    a = np.stack([r.act(o)[0] for _ in range(300)])
+    assert a.min() < -0.9 and a.max() > 0.9 and abs(a.mean()) < 0.1
+
+
+# -- VaPRL ------------------------------------------------------------------------------------------------
+def test_choose_subgoal_rule():
+    values = np.array([9.0, 2.0, 6.0, 7.0, 1.0])
+    distance = np.array([50, 0, 10, 5, 1])
+    assert choose_subgoal(values, distance, 5.0) == 3  # feasible {0, 2, 3}: nearest to rho0
+    assert choose_subgoal(values, distance, 8.0) == 0
+    assert choose_subgoal(values, distance, 9.5) == 0  # none feasible: largest value
+
+
+def test_candidates_and_time_index():
+    pos, length = demo_time_index(np.array([0, 0, 1, 0, 1], bool))
+    assert pos.tolist() == [0, 1, 2, 0, 1] and length.tolist() == [3, 3, 3, 2, 2]
+    d = _demos()
+    states, dist = subgoal_candidates(d.forward, d.reverse, 6)
+    nf = len(d.forward.actions)
+    assert states.shape == (nf + len(d.reverse.actions), 6)
+    np.testing.assert_array_equal(states[:nf], d.forward.observations[:, :6])
+    assert dist[0] == 0 and dist[1] == 1  # forward: steps since the demo start
+    ends = np.flatnonzero(d.reverse.terminals)
+    assert (dist[nf + ends] == 1).all()  # backward: steps left to the demo end, clean at every demo
+    assert dist[nf] == ends[0] + 1
+
+
+def test_vaprl_subgoal_from_value_table(monkeypatch):
+    v = _make(VaPRL, VaPRLConfig, kappa=0.5)
+    N = len(v.candidates)
+    table = np.zeros((1, N))
+    monkeypatch.setattr(v, "candidate_values", lambda mask: table)
+    v.on_reset(np.zeros((1, v.task.obs_dim), np.float32), np.ones(1, bool))
+    v.direction[:] = BACKWARD
+    table[0, [30, 700, 1500]] = [6.0, 5.0, 9.0]  # eps = 5: feasible {30, 700, 1500}
+    g = v.phase_goals(np.ones(1, bool))[0]
+    want = min((30, 700, 1500), key=lambda i: (v.distance[i], i))
+    np.testing.assert_array_equal(g, v.candidates[want])
+    table[:] = 0.0
+    table[0, 42] = 4.9  # nothing reaches eps: the largest value
+    np.testing.assert_array_equal(v.phase_goals(np.ones(1, bool))[0], v.candidates[42])
+    # the real value function: shape and finiteness
+    monkeypatch.undo()
+    vals = v.candidate_values(np.ones(1, bool))
+    assert vals.shape == (1, N) and np.isfinite(vals).all()
+
+
+def test_relabelled_rewards_match_env_predicate():
+    v = _make(VaPRL, VaPRLConfig, seed_steps=10**6, phase_step_limit=40)
+    spec = v.task
+    n0 = v.buffer.size[0]
+    _run(v, ENV, (0,), 40)  # exactly one phase
+    r = v.buffer.data
+    k = slice(n0 + 41, n0 + 41 + 2 * 4 * 40)  # after the phase's 41 steps: the relabelled segments
+    first = r["first"][0, k].numpy()
+    assert first[::2].all() and not first[1::2].any()
+    assert int(v.buffer.size[0]) == n0 + 41 + 2 * 4 * 40 + 1  # + the next phase's FIRST step
+    next_obs = r["obs"][0, k][1::2].numpy()
+    obs = r["obs"][0, k][0::2].numpy()
+    ok = spec.is_success(next_obs)
+    np.testing.assert_array_equal(r["reward"][0, k][1::2].numpy(), ok.astype(np.float32))
+    np.testing.assert_array_equal(r["terminal"][0, k][1::2].numpy(), ok)
+    np.testing.assert_array_equal(r["truncated"][0, k][1::2].numpy(), ~ok)
+    np.testing.assert_array_equal(obs[:, 6:], next_obs[:, 6:])  # same goal on both sides
+    assert ok.any()  # future goals include the own next state
+    demo_goal = (next_obs[:, None, 6:] == v.candidates[None]).all(-1).any(-1)
+    assert 0.3 < demo_goal.mean() < 0.7
+
+
+# -- both ---------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("which", ["risc", "vaprl"])
+def test_members_are_independent(which):
+    """E = 2 gives each member what an E = 1 run with its seed gives: bitwise during the warm-up (host-drawn
+    uniform actions), to float rounding afterwards (the core's batched forward differs from E = 1 by ~1 ulp)."""
+    if which == "risc":
+        mk = lambda seeds: _make(RISC, RISCConfig, seeds, phase_step_limit=40, minimum_steps=5, seed_steps=60)
+    else:
+        mk = lambda seeds: _make(VaPRL, VaPRLConfig, seeds, phase_step_limit=30, seed_steps=60)
+    seeds, steps = (3, 8), 200
+    batched = mk(seeds)
+    acts = _run(batched, ENV, seeds, steps)
+    for i, s in enumerate(seeds):
+        single = mk((s,))
+        a1 = _run(single, ENV, (s,), steps)
+        np.testing.assert_array_equal(acts[:60, i], a1[:60, 0])
+        np.testing.assert_allclose(acts[:, i], a1[:, 0], atol=1e-5, rtol=0)
+        for pb, p1 in zip(batched.sac.actor.parameters(), single.sac.actor.parameters()):
+            torch.testing.assert_close(pb.view(2, -1)[i], p1.view(-1), atol=1e-5, rtol=0)
+    if which == "risc":
+        assert batched.switches.sum() > 0
