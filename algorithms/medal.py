@@ -25,6 +25,9 @@ Where the reference code is buggy we follow its intended behaviour (3.6, 9.7):
   negatives with replacement and use the stored states themselves;
 - the actor loss's gradients never reach the critic (separate gradient computations).
 
+The controller/phase machinery (switching, goals, buffers, checkpoints) is ``algorithms.forward_backward``; this module
+adds the discriminator: its buffers, its reward and its update schedule.
+
 ``reward_form="logc"`` gives the section-10 ablation (``medal_logc``); ``positives="rho0"`` the
 section-11 one (``fbrl_vice``): both are registered by their own small modules.
 """
@@ -37,20 +40,18 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task
-from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
-from algorithms.core.buffer import SegmentReplayBuffer, StateBuffer
+from algorithms.api import DemoSet, Task
+from algorithms.core.buffer import StateBuffer
 from algorithms.core.discriminator import Discriminator
-from algorithms.core.sac import SAC
+from algorithms.forward_backward import BACKWARD, FORWARD, ForwardBackward, ForwardBackwardConfig, demo_arrays
 
-FORWARD, BACKWARD = 0, 1
+__all__ = ["BACKWARD", "FORWARD", "MEDAL", "MEDALConfig", "demo_states", "relabel_all_goals", "rho0_states"]
 
 
 @dataclass
-class MEDALConfig(SACAlgoConfig):
-    """MEDAL defaults = the reference code's (ALGORITHMS.md 9.3)."""
+class MEDALConfig(ForwardBackwardConfig):
+    """MEDAL defaults = the reference code's (ALGORITHMS.md 9.3); switch_every = 300."""
 
-    switch_every: int = 300  # policy_switch_frequency
     disc_every: int = 10  # one discriminator step every 10 env steps
     disc_batch: int = 400  # positives per step (and as many negatives): 800 in all
     disc_hidden: int = 128
@@ -76,165 +77,53 @@ def relabel_all_goals(demos, goals: np.ndarray, state_dim: int) -> list[dict[str
     """Copies of ``demos`` with the goal half overwritten by each goal in turn (9.5)."""
     out = []
     for g in goals:
-        d = {k: np.array(getattr(demos, k)) for k in ("observations", "actions", "rewards", "terminals", "next_observations")}
+        d = {k: np.array(v) for k, v in demo_arrays(demos).items()}
         d["observations"][:, state_dim:] = g
         d["next_observations"][:, state_dim:] = g
         out.append(d)
     return out
 
 
-class MEDAL(Algorithm):
+class MEDAL(ForwardBackward):
     """MEDAL: backward policy matches the demonstrations' state distribution (ICML 2022)."""
 
     Config = MEDALConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: MEDALConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
-        E, O, A = self.E, task.obs_dim, task.act_dim
-        sac_cfg = cfg.sac()
-        self.forward = SAC(O, A, [s * 2 for s in seeds], sac_cfg, device)
-        self.backward = SAC(O, A, [s * 2 + 1 for s in seeds], sac_cfg, device)
+        E, O = self.E, task.obs_dim
         self.disc = Discriminator(O, seeds, device, hidden_dim=cfg.disc_hidden, lr=cfg.disc_lr, mixup=cfg.disc_mixup)
-        cap = cfg.buffer_capacity
-        self.fwd_buf = SegmentReplayBuffer(E, cap, O, A, device, seeds, stream=10, name="forward buffer")
-        self.bwd_buf = SegmentReplayBuffer(E, cap, O, A, device, seeds, stream=11, name="backward buffer")
-        self.fwd_buf.add_demo(**_arrays(demos.forward))
-        self.bwd_buf.add_demo(**_arrays(demos.forward))
-        for d in relabel_all_goals(demos.reverse, task.goal_states, task.state_dim):
-            self.bwd_buf.add_demo(**d)
         pos = demo_states(demos.forward) if cfg.positives == "demos" else rho0_states(task)
         self.pos_buf = StateBuffer(E, len(pos), O, device, seeds, stream=12, name="discriminator positives")
         self.pos_buf.extend(pos)
-        self.neg_buf = StateBuffer(E, cap, O, device, seeds, stream=13, name="discriminator negatives")
+        self.neg_buf = StateBuffer(E, cfg.buffer_capacity, O, device, seeds, stream=13, name="discriminator negatives")
 
-        self.rngs = member_rngs(seeds, stream=7)  # task-goal draws at forward->backward switches
-        self.phase = np.zeros(E, dtype=np.int64)
-        self.phase_steps = np.zeros(E, dtype=np.int64)
-        self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
-        self.step = 0
-        self._obs = np.zeros((E, O), dtype=np.float32)
-        self._action = np.zeros((E, A), dtype=np.float32)
-        self.timers = Timers(device)
+    def backward_demos(self) -> list[dict[str, np.ndarray]]:
+        """Forward demos + backward demos relabelled with every task goal (9.5)."""
+        relabelled = relabel_all_goals(self.demos.reverse, self.task.goal_states, self.task.state_dim)
+        return [demo_arrays(self.demos.forward), *relabelled]
 
-    # -- the protocol interface ------------------------------------------------------------------
-    def on_reset(self, obs: np.ndarray, mask: np.ndarray) -> None:
-        """Hard reset (or start): forward phase with the reset observation's goal (9.4)."""
-        self.goal[mask] = obs[mask, self.task.state_dim :]
-        self.phase[mask] = FORWARD
-        self.phase_steps[mask] = 0
-        self.fwd_buf.start_segment(obs, mask)
+    def backward_reward(self, batch, mask):
+        return self.disc.reward(batch["next_obs"], self.cfg.reward_form)  # current discriminator (9.6)
 
-    def act(self, obs: np.ndarray) -> np.ndarray:
-        cfg, t = self.cfg, self.timers
-        fwd = self.phase == FORWARD
-        bwd = ~fwd
-        self._obs = o = with_goal(obs, self.goal, self.task.state_dim)
-        with t("act"):
-            ot = torch.as_tensor(o, device=self.device)
-            if fwd.all():
-                a = self.forward.act(ot)
-            elif bwd.all():
-                a = self.backward.act(ot)
-            else:
-                a_f = self.forward.act(ot, mask=fwd)
-                a_b = self.backward.act(ot, mask=bwd)
-                a = torch.where(torch.as_tensor(fwd, device=self.device)[:, None], a_f, a_b)
-            self._action = a.cpu().numpy()
-        if self.step >= cfg.seed_steps:
-            self._update(fwd, bwd)
-        return self._action
+    def on_backward_states(self, obs, mask):
+        self.neg_buf.add(obs, mask=mask)  # every backward-phase state is a negative
 
-    def _update(self, fwd: np.ndarray, bwd: np.ndarray) -> None:
-        cfg, t = self.cfg, self.timers
-        if fwd.any():
-            with t("buffer"):
-                batch = self.fwd_buf.sample(cfg.batch_size, mask=fwd)
-            with t("update"):
-                self.forward.update(batch, fwd)
-        if bwd.any():
-            with t("buffer"):
-                batch = self.bwd_buf.sample(cfg.batch_size, mask=bwd)
-            with t("update"):
-                reward = self.disc.reward(batch["next_obs"], cfg.reward_form)  # recomputed now (9.6)
-                self.backward.update(batch, bwd, reward=reward)
-        if self.step % cfg.disc_every == 0:
-            ready = self.neg_buf.size > 0
-            if ready.any():
-                with t("discriminator"):
-                    pos = self.pos_buf.sample(cfg.disc_batch, mask=ready)
-                    neg = self.neg_buf.sample(cfg.disc_batch, mask=ready)
-                    self.disc.update(pos, neg, ready)
+    def learn_extra(self, bwd_batch, bwd_mask):
+        """One discriminator step every ``disc_every`` global steps, whichever controller acts (9.3)."""
+        cfg = self.cfg
+        ready = self.neg_buf.size > 0
+        if self.step % cfg.disc_every == 0 and ready.any():
+            with self.timers("discriminator"):
+                pos = self.pos_buf.sample(cfg.disc_batch, mask=ready)
+                neg = self.neg_buf.sample(cfg.disc_batch, mask=ready)
+                self.disc.update(pos, neg, ready)
 
-    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
-        cfg, sd = self.cfg, self.task.state_dim
-        no = with_goal(next_obs, self.goal, sd)
-        success = np.asarray(self.task.is_success(no), dtype=bool)
-        reward = success.astype(np.float32)
-        fwd = self.phase == FORWARD
-        bwd = ~fwd
-        self.phase_steps += 1
-        switch = (self.phase_steps >= cfg.switch_every) | (fwd & success)
-        terminal = fwd & success
-        truncated = (switch | hard_reset) & ~terminal
-        with self.timers("buffer"):
-            for buf, m in ((self.fwd_buf, fwd), (self.bwd_buf, bwd)):
-                if m.any():
-                    buf.add(self._action, reward, no, terminal, truncated, m)
-            if bwd.any():
-                self.neg_buf.add(no, mask=bwd)
-            # switches (hard resets are handled by on_reset after the env reset)
-            sw = switch & ~hard_reset
-            to_bwd, to_fwd = sw & fwd, sw & bwd
-            if to_bwd.any():
-                for i in np.flatnonzero(to_bwd):  # new task goal, kept for the next forward phase
-                    goals = self.task.goal_states
-                    self.goal[i] = goals[self.rngs[i].integers(len(goals))]
-                first = with_goal(next_obs, self.goal, sd)
-                self.bwd_buf.start_segment(first, to_bwd)
-                self.neg_buf.add(first, mask=to_bwd)
-            if to_fwd.any():
-                self.fwd_buf.start_segment(no, to_fwd)
-        self.phase[to_bwd] = BACKWARD
-        self.phase[to_fwd] = FORWARD
-        self.phase_steps[sw] = 0
-        self.step += 1
-        return np.zeros(self.E, dtype=bool)
-
-    def eval_act(self, obs: np.ndarray) -> np.ndarray:
-        return self.forward.act(torch.as_tensor(obs, device=self.device), deterministic=True).cpu().numpy()
-
-    # -- checkpointing -----------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
-        return {
-            "forward": self.forward.state_dict(),
-            "backward": self.backward.state_dict(),
-            "disc": self.disc.state_dict(),
-            "fwd_buf": self.fwd_buf.state_dict(),
-            "bwd_buf": self.bwd_buf.state_dict(),
-            "pos_buf": self.pos_buf.state_dict(),
-            "neg_buf": self.neg_buf.state_dict(),
-            "rngs": rng_states(self.rngs),
-            "phase": self.phase.copy(),
-            "phase_steps": self.phase_steps.copy(),
-            "goal": self.goal.copy(),
-            "step": self.step,
-        }
+        return {**super().state_dict(), "disc": self.disc.state_dict(), "pos_buf": self.pos_buf.state_dict(),
+                "neg_buf": self.neg_buf.state_dict()}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        self.forward.load_state_dict(state["forward"])
-        self.backward.load_state_dict(state["backward"])
-        self.disc.load_state_dict(state["disc"])
-        for name in ("fwd_buf", "bwd_buf", "pos_buf", "neg_buf"):
+        super().load_state_dict(state)
+        for name in ("disc", "pos_buf", "neg_buf"):
             getattr(self, name).load_state_dict(state[name])
-        load_rng_states(self.rngs, state["rngs"])
-        self.phase[:] = state["phase"]
-        self.phase_steps[:] = state["phase_steps"]
-        self.goal[:] = state["goal"]
-        self.step = state["step"]
-
-    def metrics(self) -> dict[str, np.ndarray]:
-        return {"backward_fraction": (self.phase == BACKWARD).astype(np.float64)}
-
-
-def _arrays(demos) -> dict[str, np.ndarray]:
-    return {k: getattr(demos, k) for k in ("observations", "actions", "rewards", "terminals", "next_observations")}

@@ -6,18 +6,33 @@ Names match the method names of the published curves (``shared/earl/reference``)
 from __future__ import annotations
 
 from algorithms.api import Algorithm
+from algorithms.bc import BC
+from algorithms.fbrl import FBRL
+from algorithms.fbrl_vice import FBRLVICE
+from algorithms.gail import GAILNaive, GAILOracle
 from algorithms.medal import MEDAL
+from algorithms.medal_logc import MEDALLogC
+from algorithms.naive import Naive
+from algorithms.oracle import Oracle
+from algorithms.r3l import R3L
 from algorithms.risc import RISC, RISCNoTAB
 from algorithms.vaprl import VaPRL
 
 ALGORITHMS: dict[str, type[Algorithm]] = {
+    "naive": Naive,
+    "oracle": Oracle,
+    "fbrl": FBRL,
+    "r3l": R3L,
     "medal": MEDAL,
+    "medal_logc": MEDALLogC,
+    "fbrl_vice": FBRLVICE,
+    "bc": BC,
+    "gail_naive": GAILNaive,
+    "gail_oracle": GAILOracle,
     "vaprl": VaPRL,
     "risc": RISC,
     "risc_no_tab": RISCNoTAB,
 }
 
-#: methods of the paper and of RISC that suites may name before they are implemented
-PLANNED: tuple[str, ...] = (
-    "naive", "oracle", "fbrl", "r3l", "medal_logc", "fbrl_vice", "bc", "gail_naive", "gail_oracle",
-)
+#: method names that suites may list before they are implemented (none left)
+PLANNED: tuple[str, ...] = ()

@@ -97,12 +97,13 @@ def algo_env_config(algo: str, env: str) -> dict[str, Any]:
 
 def resolve_algo_config(config_cls, algo: str, env: str, *layers: dict[str, Any]):
     """The algorithm's config for ``env``: dataclass defaults, the algorithm YAML, then ``layers``
-    (each ``{"all": {...}, algo: {...}}``)."""
+    (each ``{"all": {...}, algo: {...}}``). ``all`` settings apply to the algorithms that have them
+    (:func:`check_all_keys` rejects one that no algorithm has); ``<algo>`` settings must exist."""
     merged = algo_env_config(getattr(config_cls, "config_file", None) or algo, env)
-    for layer in layers:
-        for scope in ("all", algo):
-            merged.update((layer or {}).get(scope) or {})
     keys = config_cls.keys()
+    for layer in layers:
+        merged.update({k: v for k, v in ((layer or {}).get("all") or {}).items() if k in keys})
+        merged.update((layer or {}).get(algo) or {})
     unknown = sorted(set(merged) - keys)
     if unknown:
         raise ConfigError(f"unknown config key(s) {unknown} for algorithm {algo!r}; known: {sorted(keys)}")
@@ -110,6 +111,15 @@ def resolve_algo_config(config_cls, algo: str, env: str, *layers: dict[str, Any]
         return config_cls.from_dict(merged)
     except (ValueError, TypeError) as e:
         raise ConfigError(f"bad config value for algorithm {algo!r}: {e}") from None
+
+
+def check_all_keys(config_classes: list, *layers: dict[str, Any]) -> None:
+    """An ``all.<key>`` setting must belong to at least one of the selected algorithms."""
+    known = set().union(*(c.keys() for c in config_classes)) if config_classes else set()
+    for layer in layers:
+        unknown = sorted(set((layer or {}).get("all") or {}) - known)
+        if unknown:
+            raise ConfigError(f"unknown config key(s) {unknown} in 'all': no selected algorithm has them")
 
 
 def config_hash(obj: Any) -> str:

@@ -1,0 +1,124 @@
+"""Naive RL: one forward SAC agent run reset-free on the task reward (ALGORITHMS.md section 4).
+
+The episodic approach dropped into the autonomous setting: no backward policy, only EARL's hard resets every H_T.
+The card's segmenting is a DEFAULT (NOT FOUND in the sources): the stream is cut into pseudo-episodes of
+``episode_steps`` = 300 steps (MEDAL's policy_switch_frequency), a pseudo-episode ending early on task success
+(stored terminal, like MEDAL's forward phase); at each cut the step is stored LAST, and a new segment starts from the
+current state with a freshly drawn task goal (tabletop: one of 4; door/peg: the single goal). The env is never reset
+by the algorithm. A hard reset starts a new segment with the reset observation's goal. Buffer <- forward demos.
+No bootstrapping across cuts ([MC]-style, ``bootstrap_on_truncation=False``).
+
+:class:`Naive` is also the single-controller base of :mod:`algorithms.oracle` (``episodic``: the env is reset at every
+episode end, through ``observe``'s return value) and of :mod:`algorithms.gail` (hooks :meth:`Naive.reward` and
+:meth:`Naive.learn_extra`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from algorithms.api import Algorithm, DemoSet, Task
+from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.core.buffer import SegmentReplayBuffer
+from algorithms.core.sac import SAC
+from algorithms.forward_backward import demo_arrays
+
+
+@dataclass
+class NaiveConfig(SACAlgoConfig):
+    episode_steps: int = 300  # pseudo-episode length; 0 = the env's eval horizon H_E
+    end_on_success: bool = True  # success ends the (pseudo-)episode, stored terminal
+    random_seed_actions: bool = False  # uniform actions in [-1, 1] during the seed phase (oracle.py of [MC])
+
+
+class Naive(Algorithm):
+    """Forward SAC only; pseudo-episodes with a fresh task goal, no resets but EARL's hard ones."""
+
+    Config = NaiveConfig
+    episodic = False  # True: ask the loop to reset the env at every episode end instead of cutting
+
+    def __init__(self, task: Task, demos: DemoSet, cfg: NaiveConfig, seeds: list[int], device: torch.device):
+        super().__init__(task, demos, cfg, seeds, device)
+        E, O, A = self.E, task.obs_dim, task.act_dim
+        self.agent = SAC(O, A, [s * 2 for s in seeds], cfg.sac(), device)
+        self.buf = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=10, name="replay buffer")
+        self.buf.add_demo(**demo_arrays(demos.forward))
+        self.horizon = cfg.episode_steps or task.eval_horizon
+        self.rngs = member_rngs(seeds, stream=7)  # task-goal draws at cuts, seed-phase actions
+        self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
+        self.episode_steps = np.zeros(E, dtype=np.int64)
+        self.step = 0
+        self._action = np.zeros((E, A), dtype=np.float32)
+        self.timers = Timers(device)
+
+    # -- hooks for learned rewards (GAIL) ------------------------------------------------------------------------
+    def reward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor | None:
+        """Rewards (E, B) for a sampled batch, recomputed now; None keeps the stored task reward."""
+        return None
+
+    def learn_extra(self, batch: dict[str, torch.Tensor]) -> None:
+        """Extra learning after each SAC update (past the seed phase)."""
+
+    # -- the protocol interface -----------------------------------------------------------------------------------
+    def on_reset(self, obs: np.ndarray, mask: np.ndarray) -> None:
+        """Env reset (hard, or asked for): a new episode with the reset observation's goal."""
+        self.goal[mask] = obs[mask, self.task.state_dim :]
+        self.episode_steps[mask] = 0
+        self.buf.start_segment(obs, mask)
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        cfg = self.cfg
+        seeding = self.step < cfg.seed_steps
+        with self.timers("act"):
+            if seeding and cfg.random_seed_actions:
+                self._action = np.stack([r.uniform(-1.0, 1.0, self.task.act_dim) for r in self.rngs]).astype(np.float32)
+            else:
+                o = torch.as_tensor(with_goal(obs, self.goal, self.task.state_dim), device=self.device)
+                self._action = self.agent.act(o).cpu().numpy()
+        if not seeding:
+            with self.timers("buffer"):
+                batch = self.buf.sample(cfg.batch_size)
+            with self.timers("update"):
+                self.agent.update(batch, reward=self.reward(batch))
+            self.learn_extra(batch)
+        return self._action
+
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        sd = self.task.state_dim
+        no = with_goal(next_obs, self.goal, sd)
+        success = np.asarray(self.task.is_success(no), dtype=bool)
+        self.episode_steps += 1
+        terminal = success & self.cfg.end_on_success
+        cut = (self.episode_steps >= self.horizon) | terminal
+        truncated = (cut | hard_reset) & ~terminal
+        with self.timers("buffer"):
+            self.buf.add(self._action, success.astype(np.float32), no, terminal, truncated)
+        self.step += 1
+        if self.episodic:
+            return cut  # the loop resets these envs and calls on_reset
+        new = cut & ~hard_reset  # hard resets start their segment in on_reset
+        for i in np.flatnonzero(new):
+            goals = self.task.goal_states
+            self.goal[i] = goals[self.rngs[i].integers(len(goals))]
+        if new.any():
+            self.buf.start_segment(with_goal(next_obs, self.goal, sd), new)
+            self.episode_steps[new] = 0
+        return np.zeros(self.E, dtype=bool)
+
+    def eval_act(self, obs: np.ndarray) -> np.ndarray:
+        return self.agent.act(torch.as_tensor(obs, device=self.device), deterministic=True).cpu().numpy()
+
+    # -- checkpointing --------------------------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        return {"agent": self.agent.state_dict(), "buf": self.buf.state_dict(), "rngs": rng_states(self.rngs),
+                "goal": self.goal.copy(), "episode_steps": self.episode_steps.copy(), "step": self.step}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.agent.load_state_dict(state["agent"])
+        self.buf.load_state_dict(state["buf"])
+        load_rng_states(self.rngs, state["rngs"])
+        self.goal[:], self.episode_steps[:], self.step = state["goal"], state["episode_steps"], state["step"]
