@@ -2,10 +2,13 @@
 
     harness list                                  algorithms, envs and suites
     harness run suite=NAME [key=value ...]        run a suite (or algo=... env=... ad hoc)
+    harness tune algo=medal env=NAME trials=N     an Optuna study over the algorithm's hyperparameters
+    harness tune algo=medal env=NAME --best       the best parameters as a YAML override
     harness data fetch [--dest DIR] [--base-url URL]
     harness data scripted [env=NAME] [out=DIR]    scripted demonstrations (demo_source=scripted)
     harness bench env [envs=a,b] [steps=N]
     harness bench train algo=medal env=sawyer_door members=E
+    harness report [suite=NAME] [results=DIR] [out=DIR]
 
 Bad input gets one line on stderr naming the problem and exit code 2; nothing is written.
 """
@@ -121,6 +124,18 @@ def cmd_run(args) -> int:
     return run_cli(args.overrides, dry_run=args.dry_run)
 
 
+def cmd_report(args) -> int:
+    from harness.report import report_cli
+
+    return report_cli(args.overrides)
+
+
+def cmd_tune(args) -> int:
+    from harness.tune import tune_cli
+
+    return tune_cli(args.overrides, best=args.best)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="harness", description="EARL benchmark harness for reset-free RL")
     p.add_argument("--data-dir", help="EARL data directory (default: HARNESS_DATA_DIR, cache, ../shared/earl)")
@@ -131,6 +146,15 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("overrides", nargs="*")
     r.add_argument("--dry-run", action="store_true", help="print the plan and exit")
     r.set_defaults(fn=cmd_run)
+
+    t = sub.add_parser("tune", help="tune an algorithm's hyperparameters with Optuna (key=value overrides)")
+    t.add_argument("overrides", nargs="*")
+    t.add_argument("--best", action="store_true", help="print the study's best parameters as a YAML override")
+    t.set_defaults(fn=cmd_tune)
+
+    rp = sub.add_parser("report", help="curves (PNG/PDF) and Table 1 (Markdown/LaTeX/CSV) from results")
+    rp.add_argument("overrides", nargs="*")
+    rp.set_defaults(fn=cmd_report)
 
     d = sub.add_parser("data", help="fetch or generate demonstrations")
     dsub = d.add_subparsers(dest="data_cmd", required=True)

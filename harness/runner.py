@@ -3,7 +3,9 @@
 Overrides (``key=value``): ``suite``, ``algo``/``algos``, ``env``/``envs``, ``seeds`` (a count or a
 comma list), ``steps``, ``eval_every``, ``eval_episodes``, ``checkpoint_every``, ``members`` (E, seeds
 trained in lockstep by one process), ``workers`` (parallel processes, default: cores), ``device``,
-``results`` (directory), and algorithm config as ``<algo>.<key>=value`` or ``all.<key>=value``.
+``results`` (directory), ``backend`` (``local``: a process pool, the default; ``ray``: one Ray task per
+group, see ``harness/backends.py``), ``ray_address`` (``auto`` or ``HOST:PORT``; default: start a local
+Ray instance), and algorithm config as ``<algo>.<key>=value`` or ``all.<key>=value``.
 
 Everything is validated before anything is written; re-running the same command resumes every
 unfinished run from its checkpoint and skips finished ones.
@@ -19,7 +21,6 @@ import subprocess
 import sys
 import time
 import traceback
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -27,13 +28,14 @@ import numpy as np
 import torch
 import yaml
 
-from harness.suites import ConfigError, Plan, as_plain, config_hash, load_suite, resolve_algo_config
+from harness.suites import ConfigError, Plan, as_plain, check_all_keys, config_hash, load_suite, resolve_algo_config
 from harness.suites import parse_int as _int
 
 RUN_KEYS = {
     "suite", "algo", "algos", "env", "envs", "seeds", "steps", "eval_every", "eval_episodes",
-    "checkpoint_every", "members", "workers", "device", "results",
+    "checkpoint_every", "members", "workers", "device", "results", "backend", "ray_address",
 }
+BACKENDS = ("local", "ray")
 DEFAULT_STEPS = {"tabletop_manipulation": 3_000_000, "sawyer_door": 5_000_000, "sawyer_peg": 8_000_000}
 PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
 
@@ -129,13 +131,22 @@ def build_plan(words: list[str]) -> Plan:
     ckpt = _int("checkpoint_every", ov.get("checkpoint_every", suite.get("checkpoint_every", 50_000)), 1)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
-    device = _device(ov.get("device", "cpu"))
+    backend = ov.get("backend", "local")
+    if backend not in BACKENDS:
+        raise ConfigError(f"unknown backend {backend!r}; known backends: {', '.join(BACKENDS)}")
+    if "ray_address" in ov and backend != "ray":
+        raise ConfigError("ray_address is only used with backend=ray")
+    # a Ray cluster's GPUs need not be visible from the driver: only check CUDA for local execution
+    device = ov.get("device", "cpu")
+    if not (backend == "ray" and ov.get("ray_address")):
+        device = _device(device)
     results = ov.get("results", "results")
     steps_cfg = ov.get("steps", suite.get("steps", DEFAULT_STEPS))
     suite_cfg = suite.get("config") or {}
     if not isinstance(suite_cfg, dict):
         raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
 
+    check_all_keys([ALGORITHMS[a].Config for a in algos], suite_cfg, algo_ov)
     for env in envs:
         if isinstance(steps_cfg, dict):
             if env not in steps_cfg:
@@ -161,6 +172,7 @@ def build_plan(words: list[str]) -> Plan:
                 )
     workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1)
     plan.workers = min(workers, max(len(plan.groups), 1))
+    plan.backend, plan.ray_address = backend, ov.get("ray_address")  # read by harness.backends.run_plan
     _check_results_dirs(plan)
     return plan
 
@@ -181,8 +193,11 @@ def _check_results_dirs(plan: Plan) -> None:
                     )
 
 
-def run_group(group: dict[str, Any], command: str, queue=None, threads: int | None = None) -> str | None:
-    """Run one group to completion (resuming if a checkpoint exists). Returns an error line or None."""
+def run_group(group: dict[str, Any], command: str, queue=None, threads: int | None = None, should_stop=None) -> str | None:
+    """Run one group to completion (resuming if a checkpoint exists). Returns an error line or None.
+
+    ``should_stop`` (no arguments, called after every evaluation) ends the run early (tuning's pruner);
+    ``group["study"]``/``group["trial"]``, when present, fill the results' metadata columns."""
     from harness.data import atomic_write_bytes, load_demos
     from harness.envs import get_spec
     from harness.protocol import RunSpec, train
@@ -198,7 +213,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
         eval_every=group["eval_every"], eval_episodes=group["eval_episodes"],
         checkpoint_every=group["checkpoint_every"], device=group["device"], results=group["results"],
         meta={"config_hash": group["config_hash"], "git_sha": git_sha(), "demo_source": group["demo_source"],
-              "device": group["device"]},
+              "device": group["device"], "study": group.get("study"), "trial": group.get("trial")},
     )
     label = f"{group['env']}/{group['algo']} seeds={','.join(map(str, group['seeds']))}"
     dirs = spec.member_dirs()
@@ -223,7 +238,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
             else:
                 print(msg, flush=True)
 
-        train(spec, algo, on_progress)
+        train(spec, algo, on_progress, should_stop)
         return None
     except Exception as e:  # noqa: BLE001 - recorded per run, the suite goes on
         err = f"{type(e).__name__}: {' '.join(str(e).split())}"
@@ -253,9 +268,9 @@ def print_plan(plan: Plan) -> None:
     for g in plan.groups:
         print(f"  {g['env']:<22} {g['algo']:<12} seeds={','.join(map(str, g['seeds'])):<10} steps={g['steps']:,} "
               f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}")
-    rate = 150.0  # MEDAL steps/s per run on one CPU core (harness bench train)
+    rate = 40.0  # MEDAL steps/s per run with one 2-core CPU per worker (harness bench train; GPU: faster)
     est = steps / rate / max(plan.workers, 1)
-    print(f"estimated time at ~{rate:.0f} steps/s per run: {_fmt_time(est)}")
+    print(f"estimated time at ~{rate:.0f} steps/s per run (2-core CPU, measured): {_fmt_time(est)}")
 
 
 def run_cli(words: list[str], dry_run: bool = False) -> int:
@@ -267,44 +282,16 @@ def run_cli(words: list[str], dry_run: bool = False) -> int:
         return 0
     command = " ".join(["harness", "run", *map(shlex.quote, words)])
     t0 = time.time()
-    errors: list[str] = []
-    if plan.workers == 1:
-        for g in plan.groups:
-            err = run_group(g, command)
-            if err:
-                print(f"harness: run failed: {err}", file=sys.stderr)
-                errors.append(err)
-    else:
-        errors = _run_pool(plan, command)
+    from harness.backends import run_plan
+
+    errors = run_plan(plan, command)
     print(f"done: {len(plan.groups) - len(errors)}/{len(plan.groups)} group(s) in {_fmt_time(time.time() - t0)}; "
           f"results in {plan.groups[0]['results']}")
     return 1 if errors else 0
 
 
 def _run_pool(plan: Plan, command: str) -> list[str]:
-    import multiprocessing as mp
-    import queue as queue_mod
+    """Kept for callers of the old name: the local process pool now lives in harness.backends."""
+    from harness.backends import run_pool
 
-    ctx = mp.get_context("spawn")
-    manager = ctx.Manager()
-    q = manager.Queue()
-    threads = max(1, (os.cpu_count() or 1) // plan.workers)
-    errors: list[str] = []
-    with ProcessPoolExecutor(max_workers=plan.workers, mp_context=ctx) as pool:
-        futures = [pool.submit(run_group, g, command, q, threads) for g in plan.groups]
-        pending = set(futures)
-        while pending:
-            try:
-                print(q.get(timeout=0.5), flush=True)
-            except queue_mod.Empty:
-                pass
-            for f in [f for f in pending if f.done()]:
-                pending.discard(f)
-                err = f.result()
-                if err:
-                    print(f"harness: run failed: {err}", file=sys.stderr)
-                    errors.append(err)
-        while not q.empty():
-            print(q.get(), flush=True)
-    manager.shutdown()
-    return errors
+    return run_pool(plan, command)

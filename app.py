@@ -1,0 +1,548 @@
+"""Results dashboard (Streamlit).
+
+    streamlit run app.py                       # reads results/ (or $HARNESS_RESULTS)
+    streamlit run app.py -- --results DIR      # any results directory
+
+The directory can also be changed in the sidebar. Data are read through ``harness.results.load``
+and cached; the cache key is the number and the latest modification time of the
+``evals.parquet``/``status.json`` files, so a rerun (any interaction, the Refresh button, or the
+auto-refresh option) picks up new results. All statistics come from ``harness.analysis``.
+Tabs run lazily: only the selected tab's content is computed (``?tab=...`` in the URL selects one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import altair as alt
+import pandas as pd
+import streamlit as st
+
+from harness import analysis as A
+from harness.results import EVALS_FILE, STATUS_FILE, load
+
+TABS = ["Runs", "Learning curves", "Table 1", "Aggregates", "Ablations", "Tuning"]
+SOURCES = ["risc_paper", "earl_benchmark"]
+CURVE_METRICS = {
+    "deployed_success": "Deployed success",
+    "deployed_return": "Deployed return",
+    "continuing_reward": "Continuing: cumulative training reward",
+    "continuing_reward_rate": "Continuing: average reward per step",
+    "interventions": "Interventions (resets)",
+}
+DASH = {"ours": [1, 0], "risc_paper": [6, 3], "earl_benchmark": [2, 2]}
+HOWTO = """
+**No results yet in `{root}`.** Produce some with the harness, then come back (this page refreshes
+when files change):
+
+```bash
+harness run suite=smoke                       # every algorithm x every env, tiny budgets (< 3 min)
+harness run suite=earl_sparse                 # Table 1 of the MEDAL paper (5 seeds, 3M/5M/8M steps)
+harness run algo=medal env=sawyer_door seeds=3 steps=200000 results={root}
+streamlit run app.py -- --results {root}      # this dashboard on another directory
+```
+Each run writes `<results>/<suite>/<env>/<algo>/seed=<k>/{{evals.parquet,run.yaml,status.json}}`.
+"""
+
+
+# ------------------------------------------------------------------------------------------
+# data access (cached)
+
+
+def default_results() -> str:
+    p = argparse.ArgumentParser(add_help=False)
+    p.add_argument("--results")
+    args, _ = p.parse_known_args(sys.argv[1:])
+    return args.results or os.environ.get("HARNESS_RESULTS") or "results"
+
+
+def signature(root: str) -> tuple[int, float]:
+    """(number of parquet/status files, their latest mtime): the cache key for ``root``."""
+    n, latest = 0, 0.0
+    r = Path(root)
+    if not r.exists():
+        return (0, 0.0)
+    for name in (EVALS_FILE, STATUS_FILE):
+        for p in r.rglob(name):
+            try:
+                latest = max(latest, p.stat().st_mtime)
+                n += 1
+            except OSError:
+                pass
+    return (n, latest)
+
+
+@st.cache_data(show_spinner="Loading results…", max_entries=4)
+def load_results(root: str, sig: tuple) -> tuple[pd.DataFrame, list[str]]:
+    warnings: list[str] = []
+    df = load(root, warn=warnings.append)
+    if len(df):
+        df = A.derive_metrics(df)
+        for c in ("suite", "env", "algo", "metric"):
+            df[c] = df[c].astype(str)
+    return df, warnings
+
+
+@st.cache_data(show_spinner=False, max_entries=1)
+def load_published_curves() -> tuple[pd.DataFrame | None, str]:
+    try:
+        from harness.results import load_published
+
+        return load_published(), ""
+    except Exception as e:  # noqa: BLE001 - optional overlay
+        return None, " ".join(str(e).split())
+
+
+class Sel(NamedTuple):
+    """The sidebar's selection (hashable: a cache key)."""
+
+    suite: str | None
+    envs: tuple
+    algos: tuple
+    tuning: bool = False  # include `harness tune` trial runs
+
+
+def filtered(root: str, sig: tuple, sel: Sel) -> pd.DataFrame:
+    df, _ = load_results(root, sig)
+    if df.empty:
+        return df
+    if not sel.tuning:
+        df = df[~A.is_tuning(df)]
+    return A.select(df, suite=sel.suite, env=list(sel.envs), algo=list(sel.algos))
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def curves_for(root, sig, sel: Sel, metric, window, grid, ci) -> pd.DataFrame:
+    return A.learning_curves(filtered(root, sig, sel), metric, window=window, grid=grid, ci=ci)
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def published_curves_for(sources, envs, algos, metric, window, ci) -> pd.DataFrame:
+    pub, _ = load_published_curves()
+    if pub is None or not sources:
+        return pd.DataFrame(columns=["source", "env", "algo", "step", "mean", "se", "ci_lo", "ci_hi"])
+    d = A.select(pub, metric, source=list(sources), env=list(envs), algo=list(algos))
+    return A.learning_curves(d, metric, window=window, ci=ci)
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def table1_for(root, sig, sel: Sel, step, last_k, published) -> pd.DataFrame:
+    return A.table1(filtered(root, sig, sel), step=step, last_k=last_k,
+                    published=A.PUBLISHED_TABLE1 if published else None)
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def scores_for(root, sig, sel: Sel, step, last_k) -> pd.DataFrame:
+    return A.final_scores(filtered(root, sig, sel), "deployed_success", step=step, last_k=last_k)
+
+
+@st.cache_data(show_spinner=False, max_entries=32)
+def aggregates_for(root, sig, sel: Sel, step, last_k, reps) -> pd.DataFrame:
+    s = scores_for(root, sig, sel, step, last_k)
+    return A.aggregate_scores(s, algos=list(sel.algos), envs=list(sel.envs), reps=reps)
+
+
+# ------------------------------------------------------------------------------------------
+# charts
+
+
+TAB10 = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
+
+
+def palette(methods: list[str]) -> list[str]:
+    """The report's colours (tab10 in the paper's method order), so app and figures agree."""
+    known = list(A.ALGO_ORDER) + [a for a in A.ALGO_LABELS if a not in A.ALGO_ORDER]
+    labels = [A.algo_label(a) for a in known]
+    rest = sorted(m for m in methods if m not in labels)
+    order = labels + rest
+    return [TAB10[order.index(m) % 10] for m in methods]
+
+
+def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str, band: str,
+                methods: list[str]) -> alt.Chart:
+    """Methods overlaid: mean line, band (SE or bootstrap CI), published curves dashed."""
+    c = c[c["env"] == env].copy()
+    c["method"] = c["algo"].map(A.algo_label)
+    c["curve"] = "ours"
+    lo, hi = ("ci_lo", "ci_hi") if band == "ci" else (None, None)
+    c["lo"] = c[lo] if lo else c["mean"] - c["se"]
+    c["hi"] = c[hi] if hi else c["mean"] + c["se"]
+    frames = [c]
+    if pub is not None and len(pub):
+        p = pub[pub["env"] == env].copy()
+        p["method"] = p["algo"].map(A.algo_label)
+        p["curve"] = p["source"]
+        frames.append(p)
+    d = pd.concat(frames, ignore_index=True)[["method", "curve", "step", "mean", "se", "n", "lo", "hi"]]
+    d["n"] = d["n"].astype("float64")
+    x = alt.X("step:Q", title="environment steps", axis=alt.Axis(format="~s"))
+    color = alt.Color("method:N", scale=alt.Scale(domain=methods, range=palette(methods)),
+                      legend=alt.Legend(title=None, orient="bottom", columns=3, labelLimit=300,
+                                        symbolType="stroke", symbolOpacity=1, symbolStrokeWidth=3))
+    dash_domain = [k for k in DASH if k in set(d["curve"])]
+    dash = alt.StrokeDash("curve:N", scale=alt.Scale(domain=dash_domain, range=[DASH[k] for k in dash_domain]),
+                          legend=alt.Legend(title=None, orient="top", direction="horizontal", labelLimit=300,
+                                            symbolStrokeColor="gray"))
+    y_title = CURVE_METRICS.get(metric, metric)
+    scale = alt.Scale(domain=[0, 1]) if metric == "deployed_success" else alt.Scale(zero=False)
+    base = alt.Chart(d)
+    band_layer = base.transform_filter(alt.datum.curve == "ours").mark_area(opacity=0.18).encode(
+        x=x, y=alt.Y("lo:Q", title=y_title, scale=scale), y2="hi:Q", color=color)
+    line = base.mark_line(strokeWidth=2).encode(
+        x=x, y=alt.Y("mean:Q", title=y_title, scale=scale), color=color, strokeDash=dash,
+        tooltip=["method", "curve", "step", alt.Tooltip("mean:Q", format=".3f"), alt.Tooltip("se:Q", format=".3f"),
+                 alt.Tooltip("n:Q", format="d")])
+    return (band_layer + line).properties(title=A.env_label(env))
+
+
+def curves_grid(c: pd.DataFrame, pub: pd.DataFrame | None, metric: str, band: str, ncols: int = 2) -> None:
+    envs = A.order_envs(c["env"])
+    algos = A.order_algos(list(c["algo"]) + (list(pub["algo"]) if pub is not None else []))
+    methods = [A.algo_label(a) for a in algos]
+    for i in range(0, len(envs), ncols):
+        cols = st.columns(ncols)
+        for col, env in zip(cols, envs[i:i + ncols]):
+            with col:
+                # Streamlit's default height="content" squashes layered charts: give the height here
+                st.altair_chart(curve_chart(c, pub, env, metric, band, methods), width="stretch", height=430)
+
+
+# ------------------------------------------------------------------------------------------
+# tabs
+
+
+def tab_runs(root: str, tuning: bool) -> None:
+    status = A.run_status(root, stale_after=st.session_state.get("stale_after", 15) * 60)
+    if not tuning:
+        status = status[~status["tuning"]]
+    if status.empty:
+        st.info("No run directories (status.json / evals.parquet) found.")
+        return
+    counts = A.status_counts(status)
+    cols = st.columns(len(counts))
+    for col, (state, n) in zip(cols, counts.items()):
+        col.metric(state, n)
+    view = status.copy()
+    view["ETA"] = [A.format_duration(x) if s in ("running", "resumed", "stale") else "" for x, s in
+                   zip(view["eta_s"], view["state"])]
+    view["updated"] = [A.format_duration(x) + " ago" if not math.isnan(x) else "" for x in view["age_s"]]
+    first = {"failed": 0, "stale": 1, "running": 2, "resumed": 3, "unknown": 4, "done": 5}  # what needs a look first
+    view = view.assign(_o=view["state"].map(first).fillna(6)).sort_values(["_o", "suite", "env", "algo", "seed"])
+    st.dataframe(
+        view[["suite", "env", "algo", "seed", "state", "progress", "step", "total", "steps_per_s", "ETA",
+              "last_success", "updated", "error"]],
+        hide_index=True,
+        column_config={
+            "progress": st.column_config.ProgressColumn("progress", min_value=0.0, max_value=1.0, format="percent"),
+            "steps_per_s": st.column_config.NumberColumn("steps/s", format="%.1f"),
+            "step": st.column_config.NumberColumn("step", format="%d"),
+            "total": st.column_config.NumberColumn("total", format="%d"),
+            "last_success": st.column_config.NumberColumn("last success", format="%.2f"),
+            "error": st.column_config.TextColumn("error line", width="large"),
+        },
+    )
+    failed = status[status["state"] == "failed"]
+    for _, r in failed.iterrows():
+        st.error(f"**{r['env']}/{r['algo']} seed={r['seed']}** ({r['suite']}): {r['error'] or 'failed (no message)'}")
+    st.caption("stale = running/resumed but status.json not updated for longer than the threshold "
+               "(or 3 evaluation intervals at the current steps/s, whichever is longer).")
+    st.number_input("stale after (minutes)", min_value=1, max_value=24 * 60, value=15, key="stale_after")
+
+
+def tab_curves(root, sig, sel: Sel) -> None:
+    c1, c2, c3, c4 = st.columns([2, 2, 2, 2])
+    metric = c1.selectbox("metric", list(CURVE_METRICS), format_func=CURVE_METRICS.get, key="curve_metric")
+    window = c2.slider("smoothing (moving average over evaluations)", 1, 25, 1, key="smooth")
+    band_label = c3.radio("band", ["standard error", "95% bootstrap CI"], key="band", horizontal=True)
+    grid = c4.selectbox("common grid", ["auto", "common", "interp"], key="grid",
+                        help="common: steps every seed evaluated at; interp: linear interpolation onto the union "
+                             "of steps inside the range all seeds cover; auto: common unless too sparse")
+    p1, p2 = st.columns([3, 1])
+    sources = p1.multiselect("overlay published curves (dashed)", SOURCES, default=["risc_paper"], key="sources")
+    clip = p2.checkbox("clip published to our step range", value=True, key="clip")
+    ci = band_label.startswith("95")
+    c = curves_for(root, sig, sel, metric, window, grid, ci)
+    if c.empty:
+        st.info(f"No `{metric}` results for this selection.")
+        return
+    pub = None
+    if sources:
+        pub_all, err = load_published_curves()
+        if pub_all is None:
+            st.info(f"Published curves unavailable: {err}")
+        else:
+            pub = published_curves_for(tuple(sources), tuple(sorted(c["env"].unique())),
+                                       tuple(sorted(c["algo"].unique())), metric, window, False)
+            if clip and len(pub):
+                xmax = c.groupby("env")["step"].max()
+                pub = pub[pub["step"] <= pub["env"].map(xmax)]
+            if pub.empty:
+                st.caption("No published curves for these methods/envs/metric.")
+    curves_grid(c, pub, metric, "ci" if ci else "se")
+    modes = sorted(set(c["grid"]))
+    st.caption(f"Mean over seeds, band = {'95% percentile bootstrap CI (1000 resamples, seed 0)' if ci else '±1 standard error'}; "
+               f"grid used: {', '.join(modes)}; smoothing: trailing mean over {window} evaluation(s).")
+    with st.expander("curve data"):
+        st.dataframe(c, hide_index=True)
+
+
+def step_option(prefix: str, key: str) -> tuple[int | str | None, int]:
+    c1, c2, c3 = st.columns([3, 2, 2])
+    how = c1.radio(f"{prefix} performance at", ["last evaluation", "matched step", "step N"], horizontal=True,
+                   key=f"{key}_how", help="matched step: per env, the largest step every run of every selected "
+                                          "method reached")
+    step: int | str | None = None
+    if how == "matched step":
+        step = "matched"
+    elif how == "step N":
+        step = int(c2.number_input("step N", min_value=0, value=1_000_000, step=10_000, key=f"{key}_n"))
+    last_k = int(c3.number_input("average of last k evaluations", 1, 50, 1, key=f"{key}_k"))
+    return step, last_k
+
+
+def tab_table1(root, sig, sel: Sel) -> None:
+    step, last_k = step_option("final", "t1")
+    published = st.toggle("show the paper's Table 1 beside ours", value=True, key="t1_pub")
+    t = table1_for(root, sig, sel, step, last_k, published)
+    if t.empty:
+        st.info("No deployed_success results for this selection.")
+        return
+    st.markdown(A.table1_markdown(t, published=published))
+    steps = t.dropna(subset=["step"]).groupby("env")["step"].max()
+    st.caption("Ours: deployed success, mean (standard error, ddof=1) over seeds"
+               + (f" at step {', '.join(f'{A.env_label(e)} {int(s):,}' for e, s in steps.items())}" if len(steps) else "")
+               + ". Best per env in bold (ties after rounding). "
+               + (f"Paper: {A.PUBLISHED_TABLE1_SOURCE}; Δ = ours − paper." if published else ""))
+    d1, d2, d3 = st.columns(3)
+    d1.download_button("CSV", A.table1_csv(t), "table1.csv", "text/csv", key="dl_csv")
+    d2.download_button("Markdown", A.table1_markdown(t, published=published), "table1.md", "text/markdown",
+                       key="dl_md")
+    d3.download_button("LaTeX", A.table1_latex(t, published=published), "table1.tex", "application/x-tex",
+                       key="dl_tex")
+    with st.expander("numbers"):
+        st.dataframe(t, hide_index=True)
+
+
+def tab_aggregates(root, sig, sel: Sel) -> None:
+    step, last_k = step_option("score", "agg")
+    scores = scores_for(root, sig, sel, step, last_k)
+    if scores.empty:
+        st.info("No deployed_success results for this selection.")
+        return
+    have = A.order_algos(scores["algo"].unique())
+    chosen = st.multiselect("methods", have, default=have, format_func=A.algo_label, key="agg_algos")
+    shared = A.common_envs(scores, chosen) if chosen else []
+    if not chosen or not shared:
+        st.info("Choose methods that share at least one env.")
+        return
+    left_out = sorted(set(scores["env"]) - set(shared))
+    agg = aggregates_for(root, sig, sel._replace(envs=tuple(shared), algos=tuple(chosen)), step, last_k, 2000)
+    st.markdown(f"**IQM and mean of deployed success across {len(shared)} env(s)** "
+                f"({', '.join(A.env_label(e) for e in shared)}); 95% stratified-bootstrap CIs, 2000 resamples.")
+    if left_out:
+        st.caption(f"Envs not shared by all chosen methods are left out: {', '.join(left_out)}.")
+    view = agg.assign(method=agg["algo"].map(A.algo_label))
+    chart = alt.Chart(view).mark_rule(strokeWidth=3).encode(
+        y=alt.Y("method:N", sort=list(view["method"]), title=None), x=alt.X("iqm_lo:Q", title="IQM (deployed success)",
+                                                                             scale=alt.Scale(domain=[0, 1])),
+        x2="iqm_hi:Q", color=alt.Color("method:N", legend=None)) + alt.Chart(view).mark_point(
+        filled=True, size=80, color="black").encode(y=alt.Y("method:N", sort=list(view["method"])), x="iqm:Q",
+                                                    tooltip=["method", alt.Tooltip("iqm:Q", format=".3f"),
+                                                             alt.Tooltip("iqm_lo:Q", format=".3f"),
+                                                             alt.Tooltip("iqm_hi:Q", format=".3f")])
+    st.altair_chart(chart, width="stretch", height=40 * len(view) + 80)
+    st.dataframe(view[["method", "iqm", "iqm_lo", "iqm_hi", "mean", "mean_lo", "mean_hi", "n_envs", "n_runs"]],
+                 hide_index=True)
+
+    st.subheader("Probability of improvement")
+    if len(have) < 2:
+        st.info("Needs results of two methods.")
+        return
+    c1, c2 = st.columns(2)
+    x = c1.selectbox("X", have, index=have.index("medal") if "medal" in have else 0, format_func=A.algo_label,
+                     key="poi_x")
+    y = c2.selectbox("Y", [a for a in have if a != x], format_func=A.algo_label, key="poi_y")
+    envs_xy = A.common_envs(scores, [x, y])
+    if not envs_xy:
+        st.info("These two methods share no env.")
+        return
+    p, lo, hi = A.probability_of_improvement(A.scores_by_task(scores, x, envs_xy), A.scores_by_task(scores, y, envs_xy))
+    st.metric(f"P({A.algo_label(x)} > {A.algo_label(y)})", f"{p:.2f}", help="average over envs of "
+              "P(X_run > Y_run) + ½ P(=); 95% stratified-bootstrap CI")
+    st.caption(f"95% CI [{lo:.2f}, {hi:.2f}] over {len(envs_xy)} env(s): {', '.join(A.env_label(e) for e in envs_xy)}.")
+
+
+def tab_ablations(root, sig, sel: Sel) -> None:
+    df = filtered(root, sig, sel)
+    have = set(df["algo"].unique()) if len(df) else set()
+    shown = 0
+    for title, group in A.ABLATIONS.items():
+        present = [a for a in group if a in have]
+        if len(present) < 2:
+            continue
+        shown += 1
+        st.subheader(title)
+        sub = tuple(sorted(present))
+        c = curves_for(root, sig, sel._replace(algos=sub), "deployed_success", 1, "auto", False)
+        curves_grid(c, None, "deployed_success", "se", ncols=3)
+        fp = A.final_performance(A.select(df, algo=list(present)))
+        fp["final (mean (SE))"] = [f"{m:.2f} ({s:.2f})" for m, s in zip(fp["mean"], fp["se"])]
+        wide = fp.pivot(index="algo", columns="env", values="final (mean (SE))")
+        wide.index = [A.algo_label(a) for a in wide.index]
+        wide.columns = [A.env_label(e) for e in wide.columns]
+        st.dataframe(wide)
+    if not shown:
+        lines = "\n".join(f"- {t}: {', '.join(g)}" for t, g in A.ABLATIONS.items())
+        st.info("No ablation has results for two or more of its methods yet. The groups:\n" + lines +
+                "\n\nRun e.g. `harness run algos=medal,medal_logc,fbrl_vice,bc,gail_naive,gail_oracle envs=... seeds=5`.")
+
+
+@st.cache_data(show_spinner=False, max_entries=16)
+def read_study(path: str, mtime: float) -> list[dict]:
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    storage = JournalStorage(JournalFileBackend(path))
+    out = []
+    for name in optuna.get_all_study_names(storage):
+        study = optuna.load_study(study_name=name, storage=storage)
+        trials = study.trials_dataframe()
+        done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+        info = {"name": name, "directions": [d.name.lower() for d in study.directions], "n_trials": len(study.trials),
+                "n_complete": len(done), "trials": trials, "best": [], "importance": None, "importance_error": ""}
+        if done:
+            best = study.best_trials
+            info["best"] = [{"number": t.number, "values": t.values, "params": t.params} for t in best]
+            try:
+                info["importance"] = optuna.importance.get_param_importances(study)
+            except Exception as e:  # noqa: BLE001 - too few trials, single param value, ...
+                info["importance_error"] = f"{type(e).__name__}: {e}"
+        out.append(info)
+    return out
+
+
+def tab_tuning(root: str) -> None:
+    tdir = Path(root) / "tuning"
+    files = sorted(p for p in tdir.rglob("*") if p.suffix in (".log", ".journal") and p.is_file()) if tdir.exists() else []
+    if not files:
+        st.info(f"No Optuna studies found under `{tdir}` (journal files `*.log` / `*.journal`).")
+        return
+    try:
+        import optuna  # noqa: F401
+    except ImportError:
+        st.info(f"Found {len(files)} study journal(s) under `{tdir}`; install Optuna (`pip install optuna`) to "
+                "see best trials and parameter importances here.")
+        return
+    for f in files:
+        try:
+            studies = read_study(str(f), f.stat().st_mtime)
+        except Exception as e:  # noqa: BLE001 - foreign *.log files
+            st.warning(f"Skipping `{f}`: not a readable Optuna journal ({type(e).__name__}).")
+            continue
+        for s in studies:
+            st.subheader(f"{s['name']}")
+            st.caption(f"`{f}` · {s['n_complete']} complete of {s['n_trials']} trials · "
+                       f"direction(s): {', '.join(s['directions'])}")
+            if not s["best"]:
+                st.info("No completed trial yet.")
+                continue
+            best = pd.DataFrame([{"trial": b["number"], **{f"value {i}": v for i, v in enumerate(b["values"])},
+                                  **b["params"]} for b in s["best"]])
+            st.markdown("**Best trial" + ("s (Pareto front)**" if len(s["directions"]) > 1 else "**"))
+            st.dataframe(best, hide_index=True)
+            if s["importance"]:
+                imp = pd.DataFrame({"parameter": list(s["importance"]), "importance": list(s["importance"].values())})
+                st.altair_chart(alt.Chart(imp).mark_bar().encode(
+                    x=alt.X("importance:Q"), y=alt.Y("parameter:N", sort="-x")).properties(
+                    title="parameter importances (fANOVA)"), width="stretch", height=30 * len(imp) + 90)
+            elif s["importance_error"]:
+                st.caption(f"Parameter importances unavailable: {s['importance_error']}")
+            with st.expander("all trials"):
+                st.dataframe(s["trials"], hide_index=True)
+
+
+# ------------------------------------------------------------------------------------------
+# page
+
+
+def main() -> None:
+    st.set_page_config(page_title="EARL results", page_icon="📈", layout="wide")
+    if "results_dir" not in st.session_state:
+        st.session_state["results_dir"] = default_results()
+    with st.sidebar:
+        st.header("Results")
+        root = st.text_input("results directory", key="results_dir").strip() or "results"
+        if st.button("Refresh"):
+            st.rerun()
+        auto = st.checkbox("auto-refresh every 30 s", value=False, key="auto_refresh")
+    t0 = time.perf_counter()
+    sig = signature(root)
+    st.title("Reset-free RL on EARL: results")
+    if not Path(root).exists():
+        st.warning(f"Results directory `{root}` does not exist.")
+        st.markdown(HOWTO.format(root=root))
+        return
+    df, warnings = load_results(root, sig)
+    for w in warnings:
+        st.warning(w)
+    has_status = sig[0] > 0 or (Path(root) / "tuning").exists()
+    if df.empty and not has_status:
+        st.markdown(HOWTO.format(root=root))
+        return
+
+    with st.sidebar:
+        tuning = st.checkbox("include `harness tune` trials", value=False, key="tuning_runs",
+                             help="trial runs under <results>/tuning/ (suites tune_<study>); off: left out of "
+                                  "every tab but Tuning")
+        if len(df) and not tuning:
+            df = df[~A.is_tuning(df)]
+        suites = sorted(df["suite"].unique()) if len(df) else []
+        suite_choice = st.selectbox("suite", ["all"] + suites, key="suite")
+        suite = None if suite_choice == "all" else suite_choice
+        sub = A.select(df, suite=suite) if len(df) else df
+        env_opts = A.order_envs(sub["env"].unique()) if len(sub) else []
+        algo_opts = A.order_algos(sub["algo"].unique()) if len(sub) else []
+        scope = f"{suite_choice}:{tuning}"  # a fresh selection (everything) per suite
+        envs = tuple(st.multiselect("envs", env_opts, default=env_opts, format_func=A.env_label, key=f"envs:{scope}"))
+        algos = tuple(st.multiselect("methods", algo_opts, default=algo_opts, format_func=A.algo_label,
+                                     key=f"algos:{scope}"))
+        n_runs = sub.groupby(["suite", "env", "algo", "seed", "trial"], dropna=False).ngroups if len(sub) else 0
+        sel = Sel(suite, envs, algos, tuning)
+        st.caption(f"{n_runs} runs with results · {len(df):,} rows · files changed "
+                   f"{A.format_duration(time.time() - sig[1])} ago")
+
+    tabs = st.tabs(TABS, key="tab", on_change="rerun", bind="query-params")
+    for tab, name in zip(tabs, TABS):
+        if tab.open is False:
+            continue
+        with tab:
+            if name == "Runs":
+                tab_runs(root, sel.tuning)
+            elif name == "Tuning":
+                tab_tuning(root)
+            elif not len(df) or not envs or not algos:
+                st.info("No evaluations for this selection yet (see the Runs tab).")
+            elif name == "Learning curves":
+                tab_curves(root, sig, sel)
+            elif name == "Table 1":
+                tab_table1(root, sig, sel)
+            elif name == "Aggregates":
+                tab_aggregates(root, sig, sel)
+            elif name == "Ablations":
+                tab_ablations(root, sig, sel)
+    st.sidebar.caption(f"rendered in {time.perf_counter() - t0:.2f} s")
+    if auto:
+        time.sleep(30)
+        st.rerun()
+
+
+main()

@@ -1,0 +1,258 @@
+"""Execution backends: where the run groups of a plan (and tuning's workers) run.
+
+- ``backend=local`` (default): the groups run in this process (``workers=1``) or in a pool of
+  ``workers`` spawned processes on this machine, each with ``cores // workers`` torch threads.
+- ``backend=ray``: each group is one Ray remote task (one CPU and one torch thread, and one GPU
+  when the device is CUDA). ``ray_address=auto`` (or ``HOST:PORT``) joins a running cluster; without it a local Ray
+  instance with ``workers`` CPUs is started (or the one this process already initialised is used).
+  Every task writes into the shared results path. A task whose worker dies (node lost, OOM kill,
+  SIGKILL) or that raises is retried up to ``RAY_MAX_RETRIES`` times; a retry resumes from the
+  group's checkpoint because :func:`harness.runner.run_group` always resumes. Ctrl-C cancels the
+  outstanding tasks (``ray.cancel(force=True)``) and the command exits with code 130.
+
+Both backends run the same :func:`~harness.runner.run_group`, so the same suite gives the same
+deterministic rows on either (timing metrics aside).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+from typing import Any, Callable
+
+from harness.suites import ConfigError, Plan
+
+RAY_MAX_RETRIES = 3
+#: environment variables a Ray worker needs to see as the driver does
+FORWARDED_ENV = ("MUJOCO_GL", "HARNESS_DATA_DIR", "HARNESS_CACHE_DIR", "OMP_NUM_THREADS", "PYTHONHASHSEED")
+#: test hook: if set (to a marker path), a Ray task SIGKILLs its own worker process once, right after
+#: its group's first checkpoint appears, to check that Ray's retry resumes the group
+TEST_KILL_ENV = "HARNESS_TEST_RAY_KILL_ONCE"
+
+
+def run_plan(plan: Plan, command: str) -> list[str]:
+    """Run every group of ``plan`` on its backend; returns the error lines (one per failed group)."""
+    backend = getattr(plan, "backend", "local")
+    if backend == "local":
+        return run_local(plan, command)
+    if backend == "ray":
+        return run_ray(plan, command, getattr(plan, "ray_address", None))
+    raise ConfigError(f"unknown backend {backend!r}; known backends: local, ray")
+
+
+def _report(err: str | None, errors: list[str]) -> None:
+    if err:
+        print(f"harness: run failed: {err}", file=sys.stderr)
+        errors.append(err)
+
+
+# ---------------------------------------------------------------------------------------- local
+
+
+def run_local(plan: Plan, command: str) -> list[str]:
+    from harness.runner import run_group
+
+    if plan.workers > 1:
+        return run_pool(plan, command)
+    errors: list[str] = []
+    for g in plan.groups:
+        _report(run_group(g, command), errors)
+    return errors
+
+
+def _pool_init(data_dir: str | None) -> None:
+    from harness import data as data_mod
+
+    data_mod.set_data_dir(data_dir)
+
+
+def _data_dir() -> str | None:
+    from harness import data as data_mod
+
+    return getattr(data_mod, "_explicit_default", None)
+
+
+def run_pool(plan: Plan, command: str) -> list[str]:
+    """The groups in a pool of ``plan.workers`` spawned processes; progress lines through a queue."""
+    import multiprocessing as mp
+    import queue as queue_mod
+    from concurrent.futures import ProcessPoolExecutor
+
+    from harness.runner import run_group
+
+    ctx = mp.get_context("spawn")
+    manager = ctx.Manager()
+    q = manager.Queue()
+    threads = max(1, (os.cpu_count() or 1) // plan.workers)
+    errors: list[str] = []
+    with ProcessPoolExecutor(max_workers=plan.workers, mp_context=ctx, initializer=_pool_init,
+                             initargs=(_data_dir(),)) as pool:
+        futures = [pool.submit(run_group, g, command, q, threads) for g in plan.groups]
+        pending = set(futures)
+        while pending:
+            try:
+                print(q.get(timeout=0.5), flush=True)
+            except queue_mod.Empty:
+                pass
+            for f in [f for f in pending if f.done()]:
+                pending.discard(f)
+                _report(f.result(), errors)
+        while not q.empty():
+            print(q.get(), flush=True)
+    manager.shutdown()
+    return errors
+
+
+def run_local_tasks(fn: Callable[..., Any], args_list: list[tuple], workers: int) -> list[Any]:
+    """``fn(*args)`` for each args tuple: in this process when there is one, else one spawned process
+    each (tuning's workers). Returns the results in order."""
+    if len(args_list) == 1 or workers <= 1:
+        return [fn(*a) for a in args_list]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=len(args_list), mp_context=ctx, initializer=_pool_init,
+                             initargs=(_data_dir(),)) as pool:
+        futures = [pool.submit(fn, *a) for a in args_list]
+        return [f.result() for f in futures]
+
+
+# ------------------------------------------------------------------------------------------ ray
+
+
+class GroupFailed(RuntimeError):
+    """A group's run raised; raised inside the Ray task so that Ray retries it."""
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("backend=ray needs Ray: pip install 'ray>=2.9'") from None
+    return ray
+
+
+def _ray_env() -> dict[str, str]:
+    env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
+    if os.environ.get(TEST_KILL_ENV):
+        env[TEST_KILL_ENV] = os.environ[TEST_KILL_ENV]
+    return env
+
+
+def _start_ray(address: str | None, num_cpus: int):
+    """(ray module, whether we started it). Joins ``address``, reuses an initialised Ray, or starts
+    a local instance with ``num_cpus`` CPUs."""
+    ray = _import_ray()
+    if ray.is_initialized():
+        return ray, False
+    kw: dict[str, Any] = {"log_to_driver": True, "include_dashboard": False}
+    if address:
+        kw["address"] = address
+    else:
+        kw["num_cpus"] = num_cpus
+    try:
+        ray.init(**kw)
+    except (ConnectionError, RuntimeError, ValueError) as e:
+        raise ConfigError(f"cannot connect to Ray at {address or 'a new local instance'}: {' '.join(str(e).split())}") from None
+    return ray, True
+
+
+def _kill_after_first_checkpoint(group: dict[str, Any]) -> None:
+    """The test hook of :data:`TEST_KILL_ENV`: a thread that SIGKILLs this worker process once."""
+    marker = os.environ.get(TEST_KILL_ENV)
+    if not marker or os.path.exists(marker):
+        return
+    import signal
+    import time
+
+    from harness.protocol import RunSpec
+
+    ckpt = RunSpec(suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"],
+                   steps=group["steps"], results=group["results"]).checkpoint_path()
+
+    def watch() -> None:
+        while not ckpt.exists():
+            time.sleep(0.02)
+        with open(marker, "w") as f:
+            f.write(str(os.getpid()))
+        os.kill(os.getpid(), signal.SIGKILL)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+def _ray_group(group: dict[str, Any], command: str, threads: int, data_dir: str | None, env: dict[str, str]) -> None:
+    """The body of one Ray task: run (or resume) the group; raise on failure so Ray retries it."""
+    os.environ.update(env)
+    from harness import data as data_mod
+    from harness.runner import run_group
+
+    data_mod.set_data_dir(data_dir)
+    _kill_after_first_checkpoint(group)
+    err = run_group(group, command, None, threads)
+    if err:
+        raise GroupFailed(err)
+
+
+def _ray_error_line(e: BaseException) -> str:
+    cause = getattr(e, "cause", None)
+    if isinstance(cause, GroupFailed):
+        return str(cause)
+    return f"{type(e).__name__}: {' '.join(str(e).split())[:500]}"
+
+
+def run_ray_tasks(ray, fn: Callable[..., Any], args_list: list[tuple], labels: list[str], options: dict[str, Any],
+                  on_error: Callable[[str, str], None]) -> list[Any]:
+    """Submit ``fn(*args)`` as Ray tasks and wait for all; Ctrl-C cancels the outstanding ones.
+    ``on_error(label, line)`` is called for each task that failed after its retries."""
+    remote = ray.remote(fn).options(**options)
+    refs = [remote.remote(*a) for a in args_list]
+    index = {ref: i for i, ref in enumerate(refs)}
+    out: list[Any] = [None] * len(refs)
+    pending = list(refs)
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1, timeout=1.0)
+            for ref in done:
+                i = index[ref]
+                try:
+                    out[i] = ray.get(ref)
+                except ray.exceptions.RayError as e:
+                    on_error(labels[i], _ray_error_line(e))
+    except KeyboardInterrupt:
+        print(f"harness: interrupted: cancelling {len(pending)} Ray task(s)", file=sys.stderr, flush=True)
+        for ref in pending:
+            try:
+                ray.cancel(ref, force=True)
+            except Exception:  # noqa: BLE001 - already finished or gone
+                pass
+        raise
+    return out
+
+
+def ray_options(device: str, num_cpus: float) -> dict[str, Any]:
+    opts: dict[str, Any] = {"num_cpus": num_cpus, "max_retries": RAY_MAX_RETRIES, "retry_exceptions": True}
+    if str(device).startswith("cuda"):
+        opts["num_gpus"] = 1
+    return opts
+
+
+def run_ray(plan: Plan, command: str, address: str | None = None) -> list[str]:
+    """Each group one Ray task; returns the error lines of the groups that failed after retries."""
+    ray, started = _start_ray(address, plan.workers)
+    threads = 1  # each task reserves one CPU (num_cpus=1): one torch thread
+    errors: list[str] = []
+    env, data_dir = _ray_env(), _data_dir()
+    try:
+        labels = [f"{g['env']}/{g['algo']} seeds={','.join(map(str, g['seeds']))}" for g in plan.groups]
+
+        def on_error(label: str, line: str) -> None:
+            _report(line if line.startswith(label) else f"{label}: {line}", errors)
+
+        run_ray_tasks(ray, _ray_group, [(g, command, threads, data_dir, env) for g in plan.groups], labels,
+                      ray_options(plan.groups[0]["device"], 1), on_error)
+    finally:
+        if started:
+            ray.shutdown()
+    return errors

@@ -1,0 +1,186 @@
+"""``harness report [suite=NAME] [results=DIR] [out=DIR] [step=last|matched|N] [smooth=K] [published=SRC,...]``
+
+Writes to ``out`` (default ``<results>/report/<suite or all>``):
+
+- ``curves.png`` / ``curves.pdf``: deployed success vs environment steps, one subplot per env,
+  methods overlaid (mean over seeds on the common grid, standard-error band; see
+  ``harness.analysis``), published curves of the same methods dashed (``published=``: sources among
+  ``risc_paper``, ``earl_benchmark``, or ``none``; default ``risc_paper``), clipped to the step
+  range of our runs in that env;
+- ``table1.md`` / ``table1.tex`` / ``table1.csv``: our final performance, mean (SE) over seeds,
+  beside the MEDAL paper's Table 1 and the difference, best per env in bold
+  (``step=last``: each run's last evaluation, the default; ``matched``: the largest step every run
+  in the env reached; ``N``: the last evaluation at or before step N);
+- ``aggregates.csv``: IQM and mean across envs with 95% stratified-bootstrap CIs.
+
+Bad input raises :class:`harness.suites.ConfigError` with one line.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from harness import analysis as A
+from harness.suites import ConfigError, parse_int
+
+KEYS = {"suite", "results", "out", "step", "smooth", "published", "metric"}
+SOURCES = ("risc_paper", "earl_benchmark")
+CURVE_METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions")
+Y_LABELS = {"deployed_success": "Deployed success", "deployed_return": "Deployed return",
+            "continuing_reward": "Cumulative training reward", "interventions": "Interventions"}
+
+
+def parse(overrides: list[str]) -> dict[str, str]:
+    out: dict[str, str] = {}
+    for it in overrides:
+        if "=" not in it:
+            raise ConfigError(f"expected key=value, got {it!r}; usage: harness report [suite=NAME] [results=DIR] [out=DIR]")
+        k, v = it.split("=", 1)
+        if k not in KEYS:
+            raise ConfigError(f"unknown key {k!r} for harness report; known keys: {', '.join(sorted(KEYS))}")
+        out[k] = v
+    return out
+
+
+def algo_colors(algos) -> dict[str, tuple]:
+    """A fixed colour per method (paper order first), shared by every subplot."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    known = list(A.ALGO_ORDER) + [a for a in A.ALGO_LABELS if a not in A.ALGO_ORDER]
+    rest = sorted(a for a in algos if a not in known)
+    return {a: cmap(i % 10) for i, a in enumerate(known + rest)}
+
+
+def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: str = "deployed_success"):
+    """A matplotlib Figure (no pyplot state): one subplot per env, methods overlaid with SE band,
+    published curves dashed."""
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    envs = A.order_envs(curves["env"])
+    algos = A.order_algos(curves["algo"])
+    colors = algo_colors(list(algos) + (list(published["algo"].unique()) if published is not None else []))
+    ncols = min(3, max(len(envs), 1))
+    nrows = math.ceil(len(envs) / ncols) if envs else 1
+    with matplotlib.rc_context({"font.size": 9, "axes.titlesize": 10, "pdf.fonttype": 42, "ps.fonttype": 42,
+                                "axes.spines.top": False, "axes.spines.right": False}):
+        fig = Figure(figsize=(3.4 * ncols, 2.6 * nrows + 0.6), layout="constrained")
+        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        handles: dict[str, object] = {}
+        dashes = {src: d for src, d in zip(SOURCES, [(4, 2), (1, 1.5)])}
+        for ax, env in zip(axes, envs):
+            c = curves[curves["env"] == env]
+            xmax = float(c["step"].max()) if len(c) else 0.0
+            scale, unit = (1e6, "M") if xmax >= 1e6 else (1e3, "k")
+            for algo in algos:
+                g = c[c["algo"] == algo].sort_values("step")
+                if g.empty:
+                    continue
+                x = g["step"].to_numpy() / scale
+                (h,) = ax.plot(x, g["mean"], color=colors[algo], lw=1.6, label=A.algo_label(algo))
+                ax.fill_between(x, g["mean"] - g["se"], g["mean"] + g["se"], color=colors[algo], alpha=0.2, lw=0)
+                handles.setdefault(A.algo_label(algo), h)
+            if published is not None and len(published):
+                p = published[(published["env"] == env) & published["algo"].isin(algos) & (published["step"] <= xmax)]
+                for (src, algo), g in p.groupby(["source", "algo"]):
+                    g = g.sort_values("step")
+                    label = f"{A.algo_label(algo)} ({src})"
+                    (h,) = ax.plot(g["step"] / scale, g["mean"], color=colors[algo], lw=1.2,
+                                   dashes=dashes.get(src, (2, 2)), label=label)
+                    handles.setdefault(label, h)
+            ax.set_title(A.env_label(env))
+            ax.set_xlabel(f"Environment steps ({unit})")
+            ax.grid(alpha=0.25, lw=0.5)
+            if metric == "deployed_success":
+                ax.set_ylim(-0.03, 1.03)
+        for ax in axes[: len(envs)][::ncols]:
+            ax.set_ylabel(Y_LABELS.get(metric, metric))
+        for ax in axes[len(envs):]:
+            ax.set_visible(False)
+        if handles:
+            fig.legend(list(handles.values()), list(handles.keys()), loc="outside lower center",
+                       ncols=min(len(handles), 4), frameon=False)
+    return fig
+
+
+def report_cli(overrides: list[str]) -> int:
+    from harness.data import DataNotFoundError
+    from harness.results import load, load_published
+
+    ov = parse(overrides)
+    results = Path(ov.get("results", "results"))
+    if not results.exists():
+        raise ConfigError(f"results directory not found: {results}; run `harness run suite=...` first or pass results=DIR")
+    suite = ov.get("suite")
+    out = Path(ov["out"]) if "out" in ov else results / "report" / (suite or "all")
+    metric = ov.get("metric", "deployed_success")
+    if metric not in CURVE_METRICS:
+        raise ConfigError(f"unknown metric {metric!r} for curves; known: {', '.join(CURVE_METRICS)}")
+    step_opt = ov.get("step", "last")
+    step: int | str | None
+    if step_opt == "last":
+        step = None
+    elif step_opt == "matched":
+        step = "matched"
+    else:
+        step = parse_int("step", step_opt, 0)
+    window = parse_int("smooth", ov.get("smooth", "1"), 1)
+    srcs = [s for s in ov.get("published", "risc_paper").split(",") if s and s != "none"]
+    for s in srcs:
+        if s not in SOURCES:
+            raise ConfigError(f"unknown published source {s!r}; known: {', '.join(SOURCES)}, none")
+
+    warnings: list[str] = []
+    df = load(results, warn=warnings.append)
+    for w in warnings:
+        print(f"harness report: warning: {w}", file=sys.stderr)
+    if df.empty:
+        raise ConfigError(f"no results (evals.parquet) under {results}; run `harness run suite=...` first")
+    if not (suite or "").startswith("tune_"):
+        df = df[~A.is_tuning(df)]  # harness tune trials: only when their suite is named
+        if df.empty:
+            raise ConfigError(f"only `harness tune` trials under {results}; name one with suite=tune_<study>")
+    if suite:
+        known = sorted(df["suite"].dropna().astype(str).unique())
+        df = df[df["suite"] == suite]
+        if df.empty:
+            raise ConfigError(f"no results for suite {suite!r} under {results}; suites with results: {', '.join(known)}")
+    if not (df["metric"] == "deployed_success").any():
+        raise ConfigError(f"no deployed_success rows under {results}" + (f" for suite {suite!r}" if suite else ""))
+
+    curves = A.learning_curves(df, metric, window=window)
+    pub_curves = None
+    if srcs:
+        try:
+            pub = A.select(load_published(), metric, source=srcs)
+            pub = A.select(pub, env=list(curves["env"].unique()), algo=list(curves["algo"].unique()))
+            pub_curves = A.learning_curves(pub, metric, window=window)
+        except (DataNotFoundError, OSError) as e:
+            print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    fig = plot_curves(curves, pub_curves, metric)
+    for ext in ("png", "pdf"):
+        p = out / f"curves.{ext}"
+        fig.savefig(p, dpi=200 if ext == "png" else None, bbox_inches="tight")
+        written.append(p)
+
+    t = A.table1(df, step=step)
+    for name, text in (("table1.md", A.table1_markdown(t)), ("table1.tex", A.table1_latex(t)),
+                       ("table1.csv", A.table1_csv(t))):
+        (out / name).write_text(text)
+        written.append(out / name)
+
+    scores = A.final_scores(df, step=step)
+    agg = A.aggregate_scores(scores)
+    agg.to_csv(out / "aggregates.csv", index=False)
+    written.append(out / "aggregates.csv")
+    for p in written:
+        print(p)
+    return 0

@@ -1,0 +1,529 @@
+"""``harness tune``: an Optuna study over an algorithm's hyperparameters (MEDAL's discriminator).
+
+    harness tune algo=medal env=ENV trials=N [study=NAME] [storage=PATH|URL] [steps=N] [seeds=N]
+                 [workers=N] [pruner=median|hyperband|none] [sampler=tpe|random] [seed=N]
+                 [results=DIR] [backend=local|ray] [ray_address=...] [search=FILE]
+                 [heartbeat_interval=S] [grace_period=S] [eval_every=...] [eval_episodes=...]
+                 [checkpoint_every=...] [device=...] [<algo>.<key>=value | all.<key>=value ...]
+    harness tune algo=medal env=ENV [study=NAME] [storage=...] --best
+
+Search space: ``suites/algorithms/<algo>_search.yaml`` (``params: {name: {type, low, high, log} |
+{type: categorical, choices}}``); parameters fixed on the command line are left out of it.
+
+A trial trains its seeds in lockstep (one group, ``members`` = seeds) with the sampled config into
+``<results>/tuning/<study>/trial=<n>/`` under the suite name ``tune_<study>``, with the ``study``
+and ``trial`` metadata columns filled. After every evaluation the trial reports the mean deployed
+success so far (the area under the success curve, averaged over seeds) and stops if the pruner
+says so (``optuna.TrialPruned``; its partial results stay). The objective is that value at the end.
+
+Storage: by default the journal file ``<results>/tuning/<study>.journal``; ``storage=`` takes another
+path or an RDB URL (``postgresql://user@host/db``, ``sqlite:///file.db``). The study is loaded if it
+exists, so re-running the command continues it until ``trials`` trials have finished (complete or
+pruned). ``workers=N`` runs N worker processes (or Ray tasks with ``backend=ray``) on the same study.
+A trial whose worker died is marked FAILED and retried with the same parameters, resuming from the
+dead trial's checkpoint (it writes into the dead trial's directory): on an RDB through Optuna's
+heartbeat (``heartbeat_interval``, ``grace_period``), on a journal file when a later worker on the
+same host finds the dead trial's process gone.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import shlex
+import socket
+import sys
+import warnings
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from harness.suites import SUITES_DIR, ConfigError, parse_int
+
+TUNE_KEYS = {
+    "algo", "env", "trials", "storage", "study", "steps", "seeds", "workers", "pruner", "sampler", "seed",
+    "results", "backend", "ray_address", "search", "heartbeat_interval", "grace_period",
+    "eval_every", "eval_episodes", "checkpoint_every", "device",
+}
+PASSED_TO_RUN = ("steps", "eval_every", "eval_episodes", "checkpoint_every", "device")
+PRUNERS = ("median", "hyperband", "none")
+SAMPLERS = ("tpe", "random")
+MAX_RETRY = 3
+DEFAULT_HEARTBEAT = 60
+
+
+class TrialRunError(RuntimeError):
+    """The trial's training run failed (recorded as a FAILED trial; the study goes on)."""
+
+
+# ---------------------------------------------------------------------------------------- setup
+
+
+def _optuna():
+    try:
+        import optuna
+    except ImportError:
+        raise ConfigError("harness tune needs Optuna: pip install 'optuna>=4'") from None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    warnings.filterwarnings("ignore", category=optuna.exceptions.ExperimentalWarning)
+    warnings.filterwarnings("ignore", category=FutureWarning, module="optuna")
+    return optuna
+
+
+def load_search_space(algo: str, path: str | None = None) -> dict[str, dict[str, Any]]:
+    """The search space of ``algo`` (``suites/algorithms/<algo>_search.yaml`` or ``path``), validated."""
+    p = Path(path) if path else SUITES_DIR / "algorithms" / f"{algo}_search.yaml"
+    if not p.exists():
+        raise ConfigError(f"no search space for algorithm {algo!r}: {p} not found")
+    try:
+        d = yaml.safe_load(p.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise ConfigError(f"malformed YAML in {p}: {getattr(e, 'problem', None) or type(e).__name__}") from None
+    if not isinstance(d, dict) or set(d) - {"params"} or not isinstance(d.get("params"), dict):
+        raise ConfigError(f"{p} must be a mapping with the one key 'params'")
+    space: dict[str, dict[str, Any]] = {}
+    for name, spec in d["params"].items():
+        if not isinstance(spec, dict):
+            raise ConfigError(f"{p}: parameter {name!r} must be a mapping (type, low, high, log or choices)")
+        kind = spec.get("type")
+        if kind == "categorical":
+            if set(spec) - {"type", "choices"} or not isinstance(spec.get("choices"), list) or not spec["choices"]:
+                raise ConfigError(f"{p}: categorical parameter {name!r} needs a non-empty list 'choices' (only)")
+        elif kind in ("float", "int"):
+            if set(spec) - {"type", "low", "high", "log"} or "low" not in spec or "high" not in spec:
+                raise ConfigError(f"{p}: {kind} parameter {name!r} needs 'low' and 'high' (and optionally 'log')")
+            try:
+                lo, hi = float(spec["low"]), float(spec["high"])
+            except (TypeError, ValueError):
+                raise ConfigError(f"{p}: bounds of {name!r} must be numbers") from None
+            if not lo < hi or (spec.get("log") and lo <= 0):
+                raise ConfigError(f"{p}: bounds of {name!r} must satisfy 0 < low < high (log) or low < high")
+            if kind == "int" and not (lo.is_integer() and hi.is_integer()):
+                raise ConfigError(f"{p}: bounds of int parameter {name!r} must be integers")
+        else:
+            raise ConfigError(f"{p}: parameter {name!r} has type {kind!r}; use float, int or categorical")
+        space[name] = spec
+    return space
+
+
+def suggest(trial, name: str, spec: dict[str, Any]) -> Any:
+    if spec["type"] == "categorical":
+        return trial.suggest_categorical(name, spec["choices"])
+    if spec["type"] == "int":
+        return trial.suggest_int(name, int(spec["low"]), int(spec["high"]), log=bool(spec.get("log")))
+    return trial.suggest_float(name, float(spec["low"]), float(spec["high"]), log=bool(spec.get("log")))
+
+
+def _fmt(v: Any) -> str:
+    return str(v).lower() if isinstance(v, bool) else repr(v) if isinstance(v, float) else str(v)
+
+
+def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
+    """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
+    from harness.registry import ALGORITHMS
+    from harness.runner import build_plan
+
+    ov: dict[str, str] = {}
+    algo_words: list[str] = []
+    for w in words:
+        if "=" not in w:
+            raise ConfigError(f"expected key=value, got {w!r}")
+        k, v = w.split("=", 1)
+        if "." in k:
+            algo_words.append(w)
+        elif k not in TUNE_KEYS:
+            raise ConfigError(f"unknown key {k!r}; known keys: {', '.join(sorted(TUNE_KEYS))} or <algo>.<key>")
+        else:
+            ov[k] = v
+    algo = ov.get("algo", "medal")
+    if algo not in ALGORITHMS:
+        raise ConfigError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
+    env = ov.get("env")
+    if not env or "," in env:
+        raise ConfigError("give one env=NAME to tune on")
+    study = ov.get("study", f"{algo}_{env}")
+    if not re.fullmatch(r"[A-Za-z0-9_.-]+", study):
+        raise ConfigError(f"study names may hold letters, digits, '_', '.' and '-', got {study!r}")
+    results = ov.get("results", "results")
+    storage = ov.get("storage") or str(Path(results) / "tuning" / f"{study}.journal")
+    setup: dict[str, Any] = {"algo": algo, "env": env, "study": study, "results": results, "storage": storage}
+    hb = parse_int("heartbeat_interval", ov["heartbeat_interval"], 1) if "heartbeat_interval" in ov else None
+    grace = parse_int("grace_period", ov["grace_period"], 1) if "grace_period" in ov else None
+    setup.update(heartbeat_interval=hb, grace_period=grace)
+    if best:
+        return setup
+
+    if "trials" not in ov:
+        raise ConfigError("give trials=N, the number of finished trials the study should reach")
+    setup["trials"] = parse_int("trials", ov["trials"], 1)
+    setup["workers"] = parse_int("workers", ov.get("workers", 1), 1)
+    seeds = ov.get("seeds", "1")
+    setup["pruner"] = ov.get("pruner", "median")
+    if setup["pruner"] not in PRUNERS:
+        raise ConfigError(f"unknown pruner {setup['pruner']!r}; known: {', '.join(PRUNERS)}")
+    setup["sampler"] = ov.get("sampler", "tpe")
+    if setup["sampler"] not in SAMPLERS:
+        raise ConfigError(f"unknown sampler {setup['sampler']!r}; known: {', '.join(SAMPLERS)}")
+    setup["seed"] = parse_int("seed", ov["seed"], 0) if "seed" in ov else None
+    setup["backend"] = ov.get("backend", "local")
+    setup["ray_address"] = ov.get("ray_address")
+
+    if setup["backend"] not in ("local", "ray"):
+        raise ConfigError(f"unknown backend {setup['backend']!r}; known backends: local, ray")
+    if setup["ray_address"] and setup["backend"] != "ray":
+        raise ConfigError("ray_address is only used with backend=ray")
+    space = load_search_space(algo, ov.get("search"))
+    fixed = {w.split("=", 1)[0].split(".", 1)[1] for w in algo_words if w.split(".", 1)[0] in (algo, "all")}
+    space = {k: v for k, v in space.items() if k not in fixed}
+    unknown = sorted(set(space) - ALGORITHMS[algo].Config.keys())
+    if unknown:
+        raise ConfigError(f"search space names unknown config key(s) {unknown} for algorithm {algo!r}")
+    if not space:
+        raise ConfigError("nothing to tune: every parameter of the search space is fixed on the command line")
+    setup["space"] = space
+
+    n_seeds = len(seeds.split(",")) if "," in seeds else parse_int("seeds", seeds, 1)
+    run_words = [f"algo={algo}", f"env={env}", f"seeds={seeds}", f"members={n_seeds}", "workers=1"]
+    run_words += [f"{k}={ov[k]}" for k in PASSED_TO_RUN if k in ov] + algo_words
+    if setup["backend"] == "ray" and setup["ray_address"]:
+        run_words += ["backend=ray", f"ray_address={setup['ray_address']}"]  # device checked on the cluster
+    # validate everything (keys, values, data) with one plan of each extreme choice; nothing is written
+    probe = str(Path(results) / "tuning" / study / ".validate")
+    for pick in (0, -1):
+        params = {k: (s["choices"][pick] if s["type"] == "categorical" else s["low"] if pick == 0 else s["high"])
+                  for k, s in space.items()}
+        plan = build_plan(run_words + [f"{algo}.{k}={_fmt(v)}" for k, v in params.items()] + [f"results={probe}"])
+    g = plan.groups[0]
+    setup.update(run_words=run_words, algo_words=algo_words, steps=g["steps"], eval_every=g["eval_every"])
+    setup["command"] = " ".join(["harness", "tune", *map(shlex.quote, words)])
+    return setup
+
+
+def make_storage(setup: dict[str, Any]):
+    """Optuna storage: a journal file (path) or an RDB URL with heartbeats and retried failed trials."""
+    optuna = _optuna()
+    spec = setup["storage"]
+    if "://" in spec:
+        kw: dict[str, Any] = {"heartbeat_interval": setup["heartbeat_interval"] or DEFAULT_HEARTBEAT}
+        if setup["grace_period"]:
+            kw["grace_period"] = setup["grace_period"]
+        try:
+            from optuna.storages import RetryHeartbeatStaleTrialCallback  # optuna >= 4.9
+
+            kw["heartbeat_stale_trial_callback"] = RetryHeartbeatStaleTrialCallback(MAX_RETRY, inherit_intermediate_values=True)
+        except ImportError:
+            kw["failed_trial_callback"] = optuna.storages.RetryFailedTrialCallback(MAX_RETRY, inherit_intermediate_values=True)
+        spec = _pg_driver(spec)
+        try:
+            return optuna.storages.RDBStorage(spec, **kw)
+        except Exception as e:  # noqa: BLE001 - bad URL, unreachable server, missing driver
+            raise ConfigError(f"cannot open storage {spec}: {type(e).__name__}: {' '.join(str(e).split())[:300]}") from None
+    path = Path(spec)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        from optuna.storages.journal import JournalFileBackend  # optuna >= 4.0
+
+        backend = JournalFileBackend(str(path))
+    except ImportError:
+        backend = optuna.storages.JournalFileStorage(str(path))
+    return optuna.storages.JournalStorage(backend)
+
+
+def _pg_driver(url: str) -> str:
+    """``postgresql://`` with whichever driver is installed (SQLAlchemy 2.1 defaults to psycopg 3,
+    earlier versions to psycopg2)."""
+    if not url.startswith(("postgresql://", "postgres://")):
+        return url
+    import importlib.util
+
+    rest = url.split("://", 1)[1]
+    if importlib.util.find_spec("psycopg") is None and importlib.util.find_spec("psycopg2") is not None:
+        return f"postgresql+psycopg2://{rest}"
+    return f"postgresql://{rest}"
+
+
+def _retry_callback():
+    try:
+        from optuna.storages import RetryHeartbeatStaleTrialCallback as cb
+    except ImportError:
+        from optuna.storages import RetryFailedTrialCallback as cb
+    return cb
+
+
+def make_sampler(setup: dict[str, Any], index: int, n_existing: int):
+    optuna = _optuna()
+    seed = None if setup["seed"] is None else setup["seed"] + 1009 * index + n_existing
+    if setup["sampler"] == "random":
+        return optuna.samplers.RandomSampler(seed=seed)
+    return optuna.samplers.TPESampler(seed=seed)
+
+
+def make_pruner(setup: dict[str, Any]):
+    optuna = _optuna()
+    if setup["pruner"] == "median":
+        return optuna.pruners.MedianPruner(n_startup_trials=5, n_warmup_steps=setup["steps"] // 4)
+    if setup["pruner"] == "hyperband":
+        return optuna.pruners.HyperbandPruner(min_resource=setup["eval_every"], max_resource=setup["steps"], reduction_factor=3)
+    return optuna.pruners.NopPruner()
+
+
+def open_study(setup: dict[str, Any], create: bool):
+    optuna = _optuna()
+    storage = make_storage(setup)
+    try:
+        if create:
+            study = optuna.create_study(study_name=setup["study"], storage=storage, direction="maximize",
+                                        load_if_exists=True)
+        else:
+            study = optuna.load_study(study_name=setup["study"], storage=storage)
+    except KeyError:
+        raise ConfigError(f"no study {setup['study']!r} in {setup['storage']}") from None
+    ident = study.user_attrs
+    if ident.get("algo", setup["algo"]) != setup["algo"] or ident.get("env", setup["env"]) != setup["env"]:
+        raise ConfigError(f"study {setup['study']!r} tunes {ident.get('algo')} on {ident.get('env')}, not "
+                          f"{setup['algo']} on {setup['env']}; choose another study=")
+    if create and "algo" not in ident:
+        study.set_user_attr("algo", setup["algo"])
+        study.set_user_attr("env", setup["env"])
+        study.set_user_attr("algo_words", setup["algo_words"])
+    return study
+
+
+def finished(study) -> int:
+    from optuna.trial import TrialState
+
+    return len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)))
+
+
+# --------------------------------------------------------------------------------------- trials
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:  # a killed child its parent has not reaped yet
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def fail_dead_local_trials(study) -> list[int]:
+    """RUNNING trials started on this host by a process that no longer exists: mark them FAILED and
+    enqueue a retry (the journal file's stand-in for an RDB's heartbeat). Returns their numbers."""
+    from optuna.exceptions import UpdateFinishedTrialError
+    from optuna.trial import TrialState
+
+    host, out = socket.gethostname(), []
+    if getattr(study._storage, "heartbeat_interval", None):
+        return out  # an RDB with heartbeats: Optuna fails stale trials itself (fail_stale_trials)
+    retry = _retry_callback()(MAX_RETRY, inherit_intermediate_values=True)
+    storage = study._storage
+    for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
+        h, _, pid = str(t.user_attrs.get("worker", "")).rpartition(":")
+        if h != host or not pid.isdigit() or _alive(int(pid)):
+            continue
+        try:
+            if storage.set_trial_state_values(t._trial_id, state=TrialState.FAIL):
+                retry(study, storage.get_trial(t._trial_id))
+                out.append(t.number)
+        except UpdateFinishedTrialError:
+            pass
+    return out
+
+
+def trial_progress(dirs: list[Path]) -> tuple[int, float]:
+    """(last evaluated step, mean deployed success so far averaged over seeds) from the parquet files."""
+    import pandas as pd
+
+    from harness.results import EVALS_FILE
+
+    means, step = [], 0
+    for d in dirs:
+        p = Path(d) / EVALS_FILE
+        if not p.exists():
+            continue
+        df = pd.read_parquet(p, columns=["step", "metric", "value"])
+        s = df[df.metric == "deployed_success"]
+        if len(s):
+            means.append(float(s.value.mean()))
+            step = max(step, int(s.step.max()))
+    return step, (float(sum(means) / len(means)) if means else float("nan"))
+
+
+def _objective(setup: dict[str, Any], threads: int | None):
+    optuna = _optuna()
+    from harness.results import write_status
+    from harness.runner import _check_results_dirs, build_plan, run_group
+
+    retry_cls = _retry_callback()
+
+    def objective(trial) -> float:
+        frozen = trial.study._storage.get_trial(trial._trial_id)
+        origin = retry_cls.retried_trial_number(frozen)
+        number = trial.number if origin is None else origin  # a retry resumes in the dead trial's directory
+        trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
+        params = {k: suggest(trial, k, spec) for k, spec in setup["space"].items()}
+        trial_dir = Path(setup["results"]) / "tuning" / setup["study"] / f"trial={number}"
+        trial.set_user_attr("results", str(trial_dir))
+        words = setup["run_words"] + [f"{setup['algo']}.{k}={_fmt(v)}" for k, v in params.items()]
+        try:
+            plan = build_plan(words + [f"results={trial_dir}"])
+            for g in plan.groups:
+                g.update(suite=f"tune_{setup['study']}", study=setup["study"], trial=number)
+            _check_results_dirs(plan)
+        except ConfigError as e:
+            raise TrialRunError(str(e)) from None
+        (group,) = plan.groups
+        from harness.protocol import RunSpec
+
+        dirs = RunSpec(suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"],
+                       steps=group["steps"], results=group["results"]).member_dirs()
+        pruned: dict[str, Any] = {}
+
+        def should_stop() -> bool:
+            step, value = trial_progress(dirs)
+            if math.isfinite(value):
+                trial.report(value, step)
+                if trial.should_prune():
+                    pruned.update(step=step, value=value)
+                    return True
+            return False
+
+        retried = f" (retry of trial {origin})" if origin is not None else ""
+        print(f"[{setup['study']}] trial {trial.number}{retried}: {params}", flush=True)
+        err = run_group(group, setup["command"], None, threads, should_stop)
+        if err:
+            print(f"[{setup['study']}] trial {trial.number} failed: {err}", file=sys.stderr, flush=True)
+            raise TrialRunError(err)
+        if pruned:
+            for d in dirs:
+                write_status(d, state="pruned", step=pruned["step"], total=group["steps"], last_success=pruned["value"])
+            print(f"[{setup['study']}] trial {trial.number} pruned at step {pruned['step']:,} "
+                  f"(mean success so far {pruned['value']:.4f})", flush=True)
+            raise optuna.TrialPruned(f"pruned at step {pruned['step']}")
+        step, value = trial_progress(dirs)
+        print(f"[{setup['study']}] trial {trial.number} finished: mean success {value:.4f}", flush=True)
+        return value
+
+    return objective
+
+
+def tune_worker(setup: dict[str, Any], index: int, threads: int | None, env: dict[str, str] | None = None) -> int:
+    """One worker: optimise the shared study until it holds ``trials`` finished trials. Returns the
+    number of trials this worker ran."""
+    if env:
+        os.environ.update(env)
+    optuna = _optuna()
+    from optuna.study import MaxTrialsCallback
+    from optuna.trial import TrialState
+
+    import torch
+
+    if threads:
+        torch.set_num_threads(threads)
+    study = open_study(setup, create=False)
+    fail_dead_local_trials(study)
+    optuna.storages.fail_stale_trials(study)
+    study = optuna.load_study(study_name=setup["study"], storage=study._storage,
+                              sampler=make_sampler(setup, index, len(study.trials)), pruner=make_pruner(setup))
+    remaining = setup["trials"] - finished(study)
+    if remaining <= 0:
+        return 0
+    before = len(study.trials)
+    study.optimize(_objective(setup, threads), n_trials=remaining, catch=(TrialRunError,),
+                   callbacks=[MaxTrialsCallback(setup["trials"], states=(TrialState.COMPLETE, TrialState.PRUNED))])
+    return len(study.trials) - before
+
+
+# ------------------------------------------------------------------------------------------ CLI
+
+
+def summary(study) -> str:
+    from optuna.trial import TrialState
+
+    counts = {s.name.lower(): len(study.get_trials(deepcopy=False, states=(s,)))
+              for s in (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL, TrialState.RUNNING, TrialState.WAITING)}
+    line = ", ".join(f"{n} {k}" for k, n in counts.items() if n)
+    return f"study {study.study_name}: {len(study.trials)} trial(s) ({line or 'none'})"
+
+
+def best_yaml(study, setup: dict[str, Any]) -> str:
+    """The best trial's parameters as a YAML ``config:`` block (for a suite file) with the equivalent
+    ``harness run`` command in a comment. The whole text is valid YAML."""
+    try:
+        best = study.best_trial
+    except ValueError:
+        raise ConfigError(f"study {study.study_name!r} has no complete trial yet") from None
+    algo, env = study.user_attrs.get("algo", setup["algo"]), study.user_attrs.get("env", setup["env"])
+    fixed: dict[str, dict[str, Any]] = {}
+    for w in study.user_attrs.get("algo_words", []):
+        k, v = w.split("=", 1)
+        scope, key = k.split(".", 1)
+        fixed.setdefault(scope, {})[key] = yaml.safe_load(v)
+    config = {**fixed, algo: {**fixed.get(algo, {}), **best.params}}
+    words = [f"algo={algo}", f"env={env}"] + [f"{s}.{k}={_fmt(v)}" for s, kv in config.items() for k, v in kv.items()]
+    head = [
+        f"# best of study {study.study_name} ({finished(study)} finished trials): trial {best.number}, "
+        f"mean deployed success {best.value:.4f}",
+        f"# results: {best.user_attrs.get('results', '?')}",
+        "# as a command (add seeds=, steps=, ...):",
+        f"#   harness run {' '.join(shlex.quote(w) for w in words)}",
+        "# or as a suite's config block:",
+    ]
+    return "\n".join(head) + "\n" + yaml.safe_dump({"config": config}, sort_keys=False)
+
+
+def tune_cli(words: list[str], best: bool = False) -> int:
+    setup = parse_setup(words, best=best)
+    if best:
+        print(best_yaml(open_study(setup, create=False), setup), end="")
+        return 0
+    study = open_study(setup, create=True)
+    fail_dead_local_trials(study)
+    print(f"tuning {setup['algo']} on {setup['env']}: study {setup['study']} in {setup['storage']}, "
+          f"{setup['trials']} trial(s) of {setup['steps']:,} steps, {len(setup['space'])} parameter(s), "
+          f"{setup['workers']} worker(s), {setup['backend']} backend; {summary(study)}", flush=True)
+    n = setup["workers"]
+    if finished(study) < setup["trials"]:
+        if setup["backend"] == "ray":
+            from harness.backends import _ray_env, _start_ray, ray_options, run_ray_tasks
+
+            ray, started = _start_ray(setup["ray_address"], n)
+            threads = 1  # each worker task reserves one CPU
+            errors: list[str] = []
+            try:
+                run_ray_tasks(ray, tune_worker, [(setup, i, threads, _ray_env()) for i in range(n)],
+                              [f"worker {i}" for i in range(n)], ray_options(_device(setup), 1),
+                              lambda label, line: errors.append(f"{label}: {line}"))
+            finally:
+                if started:
+                    ray.shutdown()
+            for e in errors:
+                print(f"harness: tune worker failed: {e}", file=sys.stderr)
+        else:
+            from harness.backends import run_local_tasks
+
+            threads = max(1, (os.cpu_count() or 1) // n) if n > 1 else None  # one worker: torch's default
+            run_local_tasks(tune_worker, [(setup, i, threads) for i in range(n)], n)
+    study = open_study(setup, create=False)
+    print(summary(study))
+    done = finished(study)
+    if any(t.value is not None for t in study.get_trials(deepcopy=False)):
+        b = study.best_trial
+        print(f"best: trial {b.number}, mean deployed success {b.value:.4f}, {b.params}")
+    print(f"best parameters as YAML: harness tune algo={setup['algo']} env={setup['env']} study={setup['study']} "
+          f"storage={shlex.quote(setup['storage'])} --best")
+    return 0 if done >= setup["trials"] else 1
+
+
+def _device(setup: dict[str, Any]) -> str:
+    for w in setup["run_words"]:
+        if w.startswith("device="):
+            return w.split("=", 1)[1]
+    return "cpu"

@@ -1,0 +1,161 @@
+"""A synthetic results directory with known values, written through the harness's own writer
+(``harness.results.RunResults`` and ``write_status``), for the dashboard/report/analysis tests.
+
+Deployed success of run (env, algo, seed) at step s (evaluations every ``EVAL_EVERY`` steps up to
+``STEPS``)::
+
+    success = FINAL[env][algo] * s / STEPS + OFFSET[seed]
+
+so at the last evaluation the mean over seeds is ``FINAL + mean(OFFSET)`` and the standard error
+``std(OFFSET, ddof=1) / sqrt(3)`` for every method (see :func:`expected_final`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from harness.results import RunResults, run_dir, write_status
+
+SUITE = "fixture"
+ENVS = ("tabletop_manipulation", "sawyer_door")
+ALGOS = ("naive", "medal", "medal_logc")
+SEEDS = (0, 1, 2)
+OFFSET = {0: 0.0, 1: 0.1, 2: 0.2}
+STEPS, EVAL_EVERY = 100_000, 10_000
+FINAL = {
+    "tabletop_manipulation": {"naive": 0.3, "medal": 0.6, "medal_logc": 0.45},
+    "sawyer_door": {"naive": 0.1, "medal": 0.7, "medal_logc": 0.5},
+}
+#: run (env, algo, seed) -> status written for it; everything else is "done"
+STATUS = {
+    ("sawyer_door", "medal_logc", 0): "running",
+    ("sawyer_door", "medal_logc", 1): "resumed",
+    ("sawyer_door", "medal_logc", 2): "stale",  # "running", last updated 2 hours ago
+}
+FAILED = ("sawyer_door", "fbrl", 0)  # a run that failed before its first evaluation (status only)
+FAILED_ERROR = "RuntimeError: CUDA out of memory (synthetic)"
+
+
+def success(env: str, algo: str, seed: int, step: int) -> float:
+    return FINAL[env][algo] * step / STEPS + OFFSET[seed]
+
+
+def expected_final(env: str, algo: str) -> tuple[float, float]:
+    """(mean, standard error ddof=1) over seeds of the last evaluation's deployed success."""
+    v = np.array([success(env, algo, s, STEPS) for s in SEEDS])
+    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(len(v)))
+
+
+def _rows(ident: dict, meta: dict, steps, fn) -> list[dict]:
+    rows = []
+    for step in steps:
+        for metric, value in fn(step).items():
+            rows.append({**ident, "step": int(step), "metric": metric, "value": float(value), **meta})
+    return rows
+
+
+def write_run(root: Path, suite: str, env: str, algo: str, seed: int, steps, fn, status: dict) -> Path:
+    """One run: ``fn(step) -> {metric: value}`` at each step, written once through RunResults."""
+    d = run_dir(root, suite, env, algo, seed)
+    r = RunResults(d, {"suite": suite, "env": env, "algo": algo, "seed": seed},
+                   {"config_hash": "fixture", "git_sha": "0" * 7, "demo_source": "earl", "device": "cpu", "members": 3})
+    r.rows = _rows(r.ident, r.meta, steps, fn)
+    r.flush()
+    (d / "run.yaml").write_text(f"suite: {suite}\nenv: {env}\nalgo: {algo}\nseed: {seed}\neval_every: {EVAL_EVERY}\n")
+    write_status(d, **status)
+    return d
+
+
+def metrics_at(env: str, algo: str, seed: int):
+    def fn(step: int) -> dict[str, float]:
+        s = success(env, algo, seed, step)
+        return {"deployed_success": s, "deployed_return": 300 * s, "continuing_reward": step * s / 1000,
+                "interventions": step // 50_000, "steps_per_s": 100.0, "wall_s": step / 100}
+    return fn
+
+
+def write_fixture(root: str | Path, corrupt: bool = False, tuning: bool = True, failed: bool = True) -> Path:
+    """Write the fixture under ``root``; ``corrupt`` adds an unreadable ``evals.parquet``;
+    ``tuning`` adds an Optuna journal under ``<root>/tuning/`` when optuna is installed;
+    ``failed`` adds the failed run :data:`FAILED` (status only)."""
+    root = Path(root)
+    now = time.time()
+    steps = range(0, STEPS + 1, EVAL_EVERY)
+    for env in ENVS:
+        for algo in ALGOS:
+            for seed in SEEDS:
+                state = STATUS.get((env, algo, seed), "done")
+                last = success(env, algo, seed, STEPS)
+                st = {"state": "running" if state == "stale" else state, "step": STEPS, "total": STEPS,
+                      "steps_per_s": 100.0, "eta_s": 0.0 if state == "done" else 50.0, "last_success": last,
+                      "updated": now - 7200 if state == "stale" else now}
+                write_run(root, SUITE, env, algo, seed, steps, metrics_at(env, algo, seed), st)
+    if failed:
+        env, algo, seed = FAILED
+        write_status(run_dir(root, SUITE, env, algo, seed), state="failed", error=FAILED_ERROR + "\nsecond line",
+                     traceback="Traceback (most recent call last): ...")
+    if corrupt:
+        d = run_dir(root, SUITE, "sawyer_door", "broken", 0)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "evals.parquet").write_bytes(b"this is not a parquet file")
+    if tuning:
+        write_tuning(root)
+    return root
+
+
+TUNE_STUDY = "medal_sawyer_door"
+
+
+def write_tuning(root: Path) -> Path | None:
+    """One ``harness tune`` trial run (as harness/tune.py lays it out: suite ``tune_<study>``,
+    ``study``/``trial`` metadata) and, when optuna is installed, the study's journal."""
+    d = run_dir(Path(root) / "tuning" / TUNE_STUDY / "trial=0", f"tune_{TUNE_STUDY}", "sawyer_door", "medal", 0)
+    r = RunResults(d, {"suite": f"tune_{TUNE_STUDY}", "env": "sawyer_door", "algo": "medal", "seed": 0},
+                   {"study": TUNE_STUDY, "trial": 0, "members": 1})
+    r.rows = _rows(r.ident, r.meta, range(0, STEPS + 1, EVAL_EVERY), lambda s: {"deployed_success": 0.99})
+    r.flush()
+    write_status(d, state="done", step=STEPS, total=STEPS, steps_per_s=100.0, eta_s=0.0, last_success=0.99)
+    try:
+        import optuna
+        from optuna.storages import JournalStorage
+        from optuna.storages.journal import JournalFileBackend
+    except ImportError:
+        return None
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    path = Path(root) / "tuning" / f"{TUNE_STUDY}.journal"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    storage = JournalStorage(JournalFileBackend(str(path)))
+    study = optuna.create_study(study_name=TUNE_STUDY, storage=storage, direction="maximize",
+                                sampler=optuna.samplers.RandomSampler(seed=0), load_if_exists=True)
+    study.optimize(lambda t: 1 - abs(math.log10(t.suggest_float("lr", 1e-4, 1e-2, log=True)) + 2.5)
+                   + 0 * t.suggest_int("batch_size", 32, 256), n_trials=12)
+    return path
+
+
+def write_big(root: str | Path, runs: int = 100, evals: int = 300) -> Path:
+    """``runs`` runs x ``evals`` evaluations (all six metrics) for the load-time check."""
+    root = Path(root)
+    envs = ("tabletop_manipulation", "sawyer_door", "sawyer_peg", "kitchen")
+    algos = ("naive", "fbrl", "r3l", "vaprl", "medal")
+    rng = np.random.default_rng(0)
+    steps = [i * 10_000 for i in range(evals)]
+    k = 0
+    while k < runs:
+        env, algo, seed = envs[k % 4], algos[(k // 4) % 5], k // 20
+        noise = rng.random(evals)
+
+        def fn(step, noise=noise):
+            i = step // 10_000
+            s = min(1.0, step / (evals * 10_000) + 0.1 * noise[i])
+            return {"deployed_success": s, "deployed_return": s, "continuing_reward": step * s,
+                    "interventions": 0, "steps_per_s": 100.0, "wall_s": step / 100}
+
+        write_run(root, "big", env, algo, seed, steps, fn,
+                  {"state": "done", "step": steps[-1], "total": steps[-1], "steps_per_s": 100.0, "eta_s": 0.0,
+                   "last_success": 1.0})
+        k += 1
+    return root

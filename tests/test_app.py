@@ -1,0 +1,158 @@
+"""The Streamlit dashboard (app.py) under ``streamlit.testing.v1.AppTest``, one test per tab, on the
+synthetic results of ``tests/fixtures_results.py``; plus the empty-directory how-to and a load-time
+check on 100 runs x 300 evaluations."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("streamlit")
+from streamlit.testing.v1 import AppTest  # noqa: E402
+
+from harness import analysis as A  # noqa: E402
+from harness.results import load  # noqa: E402
+from tests import fixtures_results as F  # noqa: E402
+
+APP = str(Path(__file__).resolve().parent.parent / "app.py")
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    return F.write_fixture(tmp_path_factory.mktemp("results"), corrupt=True)
+
+
+def run_app(monkeypatch, results, tab: str | None = None, **state) -> AppTest:
+    monkeypatch.setenv("HARNESS_RESULTS", str(results))
+    at = AppTest.from_file(APP, default_timeout=60)
+    if tab:
+        at.query_params["tab"] = tab
+    for k, v in state.items():
+        at.session_state[k] = v
+    at.run()
+    assert not at.exception, [e.value for e in at.exception]
+    return at
+
+
+def texts(at, kind: str) -> list[str]:
+    return [str(e.value) for e in at.get(kind)]
+
+
+def test_runs_tab(monkeypatch, results):
+    at = run_app(monkeypatch, results)  # the default tab
+    warnings = texts(at, "warning")
+    assert any("broken/seed=0/evals.parquet" in w for w in warnings), warnings  # corrupt file named, rest shown
+    counts = {m.label: int(m.value) for m in at.metric}
+    assert counts == {"running": 1, "resumed": 1, "stale": 1, "done": 15, "failed": 1, "unknown": 1}
+    table = at.dataframe[0].value
+    assert len(table) == 20 and {"state", "progress", "steps_per_s", "ETA", "last_success", "error"} <= set(table)
+    assert table["state"].str.contains("stale").sum() == 1
+    assert any(F.FAILED_ERROR in e for e in texts(at, "error"))
+    assert "second line" not in " ".join(texts(at, "error"))
+
+
+def test_learning_curves_tab(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Learning curves")
+    assert len(at.get("vega_lite_chart")) == 2  # one per env
+    c = at.dataframe[0].value  # "curve data" expander
+    last = c[(c["env"] == "tabletop_manipulation") & (c["algo"] == "medal") & (c["step"] == F.STEPS)].iloc[0]
+    mean, se = F.expected_final("tabletop_manipulation", "medal")
+    assert last["mean"] == pytest.approx(mean) and last["se"] == pytest.approx(se)
+    # bootstrap CI band, smoothing, the continuing metric, no published overlay
+    at.radio(key="band").set_value("95% bootstrap CI")
+    at.slider(key="smooth").set_value(3)
+    at.selectbox(key="curve_metric").set_value("continuing_reward_rate")
+    at.multiselect(key="sources").set_value([])
+    at.run()
+    assert not at.exception
+    c = at.dataframe[0].value
+    assert c["ci_lo"].notna().all() and (c["step"] > 0).all()
+    assert len(at.get("vega_lite_chart")) == 2
+
+
+def test_table1_tab(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Table 1")
+    md = "\n".join(texts(at, "markdown"))
+    mean, se = F.expected_final("tabletop_manipulation", "medal")
+    assert f"**{mean:.2f} ({se:.2f})**" in md and "0.98 (0.02)" in md  # ours (best, bold) beside the paper
+    assert [b.label for b in at.get("download_button")] == ["CSV", "Markdown", "LaTeX"]
+    at.radio(key="t1_how").set_value("step N")
+    at.run()
+    at.number_input(key="t1_n").set_value(50_000)
+    at.run()
+    md = "\n".join(texts(at, "markdown"))
+    assert f"**{0.7 * 0.5 + 0.1:.2f} (" in md  # sawyer door medal at 50k
+    at.toggle(key="t1_pub").set_value(False)
+    at.run()
+    assert "paper" not in "\n".join(texts(at, "markdown"))
+
+
+def test_aggregates_tab(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Aggregates")
+    agg = at.dataframe[0].value.set_index("method")
+    d = load(results, warn=lambda m: None)
+    scores = A.final_scores(d[~A.is_tuning(d)])  # tuning trials are left out by default
+    pooled = scores.loc[scores["algo"] == "medal", "score"].to_numpy()
+    assert agg.loc["MEDAL", "iqm"] == pytest.approx(A.iqm(pooled))
+    assert agg.loc["MEDAL", "iqm_lo"] <= agg.loc["MEDAL", "iqm"] <= agg.loc["MEDAL", "iqm_hi"]
+    poi = at.metric[0]
+    assert poi.label == "P(MEDAL > naive RL)" and poi.value == "1.00"  # every medal run beats every naive run
+
+
+def test_ablations_tab(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Ablations")
+    heads = texts(at, "subheader")
+    assert heads == ["Reward form (MEDAL vs log C)"]  # only medal + medal_logc have results
+    assert len(at.get("vega_lite_chart")) == 2
+
+
+def test_tuning_tab(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Tuning")
+    try:
+        import optuna  # noqa: F401
+    except ImportError:
+        assert any("Optuna" in t for t in texts(at, "info"))
+        return
+    assert texts(at, "subheader") == ["medal_sawyer_door"]
+    best = at.dataframe[0].value
+    assert {"trial", "value 0", "lr", "batch_size"} <= set(best.columns)
+
+
+def test_tuning_trials_toggle(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Runs", tuning_runs=True)
+    assert len(at.dataframe[0].value) == 21  # + the trial run under tuning/
+    assert f"tune_{F.TUNE_STUDY}" in at.selectbox(key="suite").options
+    at = run_app(monkeypatch, results, "Learning curves", tuning_runs=True, suite=f"tune_{F.TUNE_STUDY}")
+    assert len(at.get("vega_lite_chart")) == 1  # the trial ran on sawyer_door only
+    at.selectbox(key="suite").set_value("fixture")
+    at.run()
+    assert not at.exception and len(at.get("vega_lite_chart")) == 2
+
+
+def test_empty_and_missing_dirs(monkeypatch, tmp_path):
+    at = run_app(monkeypatch, tmp_path)
+    md = "\n".join(texts(at, "markdown"))
+    assert "No results yet" in md and "harness run suite=smoke" in md
+    at = run_app(monkeypatch, tmp_path / "nope")
+    assert any("does not exist" in w for w in texts(at, "warning"))
+
+
+def test_load_time_100_runs_x_300_evals(monkeypatch, tmp_path):
+    """Cold cache: load 100 runs x 300 evaluations (6 metrics) and render the main page (Runs), then
+    the Learning curves and Table 1 tabs. Prints the times; the bound is generous (target < 3 s)."""
+    import streamlit as st
+
+    big = F.write_big(tmp_path / "big", runs=100, evals=300)
+    AppTest.from_file(APP, default_timeout=60)  # warm the import machinery, not the data cache
+    st.cache_data.clear()
+    times = {}
+    for tab in ("Runs", "Learning curves", "Table 1"):
+        t0 = time.perf_counter()
+        at = run_app(monkeypatch, big, tab)
+        times[tab] = time.perf_counter() - t0
+    print("\nload time (100 runs x 300 evals, cold cache for the first): "
+          + ", ".join(f"{k} {v:.2f} s" for k, v in times.items()))
+    assert "100 runs with results" in " ".join(texts(at, "caption"))
+    assert times["Runs"] < 10 and times["Learning curves"] < 10
