@@ -88,6 +88,17 @@ class AlgoConfig:
         return out
 
 
+def parse_int(name: str, value: Any) -> int:
+    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5`` and ``300_000``."""
+    try:
+        x = float(str(value).replace("_", ""))
+    except ValueError:
+        raise ValueError(f"{name} must be an integer, got {value!r}") from None
+    if not x.is_integer():
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    return int(x)
+
+
 def _coerce(name: str, value: Any, default: Any) -> Any:
     """Coerce a YAML/CLI value to the type of the field's default (bool/int/float/str/tuple)."""
     if isinstance(default, bool):
@@ -99,13 +110,7 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
             raise ValueError(f"{name} must be a boolean, got {value!r}")
         return bool(value)
     if isinstance(default, int):
-        try:
-            x = float(str(value).replace("_", ""))
-        except ValueError:
-            raise ValueError(f"{name} must be an integer, got {value!r}") from None
-        if not x.is_integer():
-            raise ValueError(f"{name} must be an integer, got {value!r}")
-        return int(x)
+        return parse_int(name, value)
     if isinstance(default, float):
         try:
             return float(value)

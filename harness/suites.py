@@ -29,6 +29,8 @@ from typing import Any
 
 import yaml
 
+from algorithms.api import parse_int as _parse_int
+
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every", "config"}
 
@@ -38,16 +40,14 @@ class ConfigError(ValueError):
 
 
 def parse_int(key: str, v: Any, minimum: int = 0) -> int:
-    """An integer setting; accepts ``300000``, ``3e5`` and ``300_000``."""
+    """An integer setting (``300000``, ``3e5``, ``300_000``) of at least ``minimum``."""
     try:
-        x = float(str(v).replace("_", ""))
-    except ValueError:
-        raise ConfigError(f"{key} must be an integer, got {v!r}") from None
-    if not x.is_integer():
-        raise ConfigError(f"{key} must be an integer, got {v!r}")
-    if x < minimum:
+        n = _parse_int(key, v)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
+    if n < minimum:
         raise ConfigError(f"{key} must be >= {minimum}, got {v}")
-    return int(x)
+    return n
 
 
 def list_suites() -> list[str]:

@@ -1,6 +1,8 @@
 import os
 
+import numpy as np
 import pytest
+import torch
 
 os.environ.setdefault("MUJOCO_GL", "osmesa")
 
@@ -16,3 +18,25 @@ def _has_data() -> bool:
 
 
 requires_data = pytest.mark.skipif(not _has_data(), reason="EARL data directory not found")
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Tiny networks: intra-op threads only add overhead, and stall badly on a busy 2-core machine."""
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def rollout_actions(algo, env: str, seeds, steps: int) -> np.ndarray:
+    """Drive ``algo`` through the protocol's own step for ``steps`` steps; the actions taken (T, E, A)."""
+    from harness.protocol import Interaction
+
+    inter = Interaction(env, list(seeds))
+    inter.start(algo)
+    out = []
+    for _ in range(steps):
+        inter.step(algo)
+        out.append(algo._action.copy())
+    return np.stack(out)

@@ -16,20 +16,13 @@ from algorithms.r3l import R3L, R3LConfig, RunningMeanStd
 from harness.data import load_demos
 from harness.envs import get_spec
 
-from .conftest import requires_data
+from .conftest import requires_data, rollout_actions
 
 pytestmark = requires_data
 ENV = "tabletop_manipulation"
 SPEC = get_spec(ENV)
 AWAY = np.array([1.0, 1.0, 2.5, 0.0, -1, -1], dtype=np.float32)  # neither at a task goal nor at rho0
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 @pytest.fixture(scope="module")
@@ -183,26 +176,14 @@ def test_naive_cuts_pseudo_episodes_with_fresh_goals_and_never_resets(demos):
     assert goals == [tuple(SPEC.goal_states[rng.integers(4)]) for _ in goals]
 
 
-def _actions(m, seeds, steps):
-    from harness.protocol import Interaction
-
-    inter = Interaction(ENV, list(seeds))
-    inter.start(m)
-    out = []
-    for _ in range(steps):
-        inter.step(m)
-        out.append(m._action.copy())
-    return np.stack(out)
-
-
 def test_fbrl_members_are_independent(demos):
     """E = 2 gives each member what an E = 1 run with its seed gives, across phases and masked updates. Member 0 is
     bitwise equal; member 1 differs by float rounding (~1e-7) from the first actor forward pass on, a property of the
     core's batched layers (its slice of the member-batched weights sits at another alignment), hence the tolerance."""
     kw = dict(seed_steps=100, batch_size=16, switch_every=25)
-    both = _actions(_make(FBRL, FBRLConfig, demos, (3, 5), **kw), (3, 5), 300)
+    both = rollout_actions(_make(FBRL, FBRLConfig, demos, (3, 5), **kw), ENV, (3, 5), 300)
     for i, s in enumerate((3, 5)):
-        single = _actions(_make(FBRL, FBRLConfig, demos, (s,), **kw), (s,), 300)
+        single = rollout_actions(_make(FBRL, FBRLConfig, demos, (s,), **kw), ENV, (s,), 300)
         if i == 0:
             np.testing.assert_array_equal(both[:, i], single[:, 0])
         np.testing.assert_allclose(both[:, i], single[:, 0], atol=1e-4)

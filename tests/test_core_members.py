@@ -11,14 +11,6 @@ from torch import nn
 from algorithms.core import SAC, Discriminator, MemberAdam, MemberMLP, SACConfig, discriminator_reward
 from algorithms.core.nets import member_generators
 
-@pytest.fixture(autouse=True)
-def single_thread():
-    """Tiny networks: intra-op threads only add overhead (and stall badly on a busy machine)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
 
 SKIP = (None, 3, 5)  # member 0 updates always, member 1 skips every 3rd update, member 2 every 5th
 

@@ -18,13 +18,6 @@ pytestmark = requires_data
 ENV = "tabletop_manipulation"
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
 
 _DEMOS = {}
 

@@ -10,17 +10,10 @@ from algorithms.medal import BACKWARD, FORWARD, MEDAL, MEDALConfig, demo_states,
 from harness.data import load_demos
 from harness.envs import get_spec
 
-from .conftest import requires_data
+from .conftest import requires_data, rollout_actions
 
 pytestmark = requires_data
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _demos(env="tabletop_manipulation"):
@@ -137,27 +130,15 @@ def test_backward_update_uses_current_discriminator_reward(monkeypatch):
     torch.testing.assert_close(discriminator_reward(p, "medal"), -torch.log(1 - p + 1e-10))
 
 
-def _run(m, env, seeds, steps):
-    from harness.protocol import Interaction
-
-    inter = Interaction(env, list(seeds))
-    inter.start(m)
-    actions = []
-    for _ in range(steps):
-        inter.step(m)
-        actions.append(m._action.copy())
-    return np.stack(actions)
-
-
 def test_members_are_independent_across_switches():
     """E = 3 gives each member what an E = 1 run with its seed gives (actions and parameters)."""
     env, steps = "tabletop_manipulation", 400
     kw = dict(switch_every=25, seed_steps=100, batch_size=16, disc_batch=16)
     batched = _medal((3, 5, 8), env, **kw)
-    acts = _run(batched, env, (3, 5, 8), steps)
+    acts = rollout_actions(batched, env, (3, 5, 8), steps)
     for i, s in enumerate((3, 5, 8)):
         single = _medal((s,), env, **kw)
-        a1 = _run(single, env, (s,), steps)
+        a1 = rollout_actions(single, env, (s,), steps)
         np.testing.assert_allclose(acts[:, i], a1[:, 0], atol=1e-4)
         for name in ("forward", "backward"):
             for net in ("actor", "critic"):
