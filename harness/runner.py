@@ -289,9 +289,3 @@ def run_cli(words: list[str], dry_run: bool = False) -> int:
           f"results in {plan.groups[0]['results']}")
     return 1 if errors else 0
 
-
-def _run_pool(plan: Plan, command: str) -> list[str]:
-    """Kept for callers of the old name: the local process pool now lives in harness.backends."""
-    from harness.backends import run_pool
-
-    return run_pool(plan, command)
