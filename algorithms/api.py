@@ -57,6 +57,14 @@ class Demos(Protocol):
     source: str
 
 
+def demo_segments(terminals) -> tuple[np.ndarray, np.ndarray]:
+    """Split flat demo transitions into trajectories: (index of each trajectory's first transition,
+    trajectory id of every transition). A trajectory ends after each ``terminals`` row."""
+    t = np.asarray(terminals, dtype=bool).reshape(-1)
+    ended = np.concatenate([[False], t[:-1]])  # the previous transition closed a trajectory
+    return np.flatnonzero(np.concatenate([[True], t[:-1]])), np.cumsum(ended)
+
+
 @dataclass(frozen=True)
 class DemoSet:
     forward: Demos

@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task
+from algorithms.api import DemoSet, Task, demo_segments
 from algorithms.core.buffer import StateBuffer
 from algorithms.core.discriminator import Discriminator
 from algorithms.forward_backward import BACKWARD, FORWARD, ForwardBackward, ForwardBackwardConfig, demo_arrays
@@ -63,7 +63,7 @@ class MEDALConfig(ForwardBackwardConfig):
 
 def demo_states(demos) -> np.ndarray:
     """Every state of every demo trajectory: its first observation plus all next observations."""
-    starts = np.concatenate([[0], np.flatnonzero(demos.terminals)[:-1] + 1])
+    starts, _ = demo_segments(demos.terminals)
     return np.concatenate([demos.observations[starts], demos.next_observations]).astype(np.float32)
 
 

@@ -35,7 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task
+from algorithms.api import DemoSet, Task, demo_segments
 from algorithms.common import load_rng_states, member_rngs, rng_states
 from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned
 
@@ -55,10 +55,8 @@ class VaPRLConfig(GCConfig):
 
 def demo_time_index(terminals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(position inside its demo, that demo's length) for every transition; demos end at terminals."""
-    terminals = np.asarray(terminals, dtype=bool).reshape(-1)
-    demo = np.concatenate([[0], np.cumsum(terminals[:-1])])
-    starts = np.flatnonzero(np.concatenate([[True], terminals[:-1]]))
-    return np.arange(len(terminals)) - starts[demo], np.bincount(demo)[demo]
+    starts, demo = demo_segments(terminals)
+    return np.arange(len(demo)) - starts[demo], np.bincount(demo)[demo]
 
 
 def subgoal_candidates(forward, reverse, state_dim: int) -> tuple[np.ndarray, np.ndarray]:

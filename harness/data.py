@@ -102,11 +102,11 @@ class Demos:
         return len(self.actions)
 
     def trajectory_slices(self) -> list[slice]:
-        ends = np.flatnonzero(self.terminals) + 1
-        if len(ends) == 0 or ends[-1] != len(self):
-            ends = np.append(ends, len(self))
-        starts = np.concatenate([[0], ends[:-1]])
-        return [slice(int(s), int(e)) for s, e in zip(starts, ends)]
+        from algorithms.api import demo_segments
+
+        starts, _ = demo_segments(self.terminals)
+        ends = np.append(starts[1:], len(self))
+        return [slice(int(a), int(b)) for a, b in zip(starts, ends)]
 
     def trajectories(self) -> list[dict[str, np.ndarray]]:
         return [{k: getattr(self, k)[sl] for k in DEMO_KEYS} for sl in self.trajectory_slices()]

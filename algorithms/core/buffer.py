@@ -23,6 +23,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from algorithms.api import demo_segments
+
 from .nets import generator_states, host_mask, load_generator_states, member_generators
 
 
@@ -225,8 +227,7 @@ class SegmentReplayBuffer(MemberStorage):
         n = len(terminals)
         if n == 0:
             return
-        starts = np.flatnonzero(np.concatenate([[True], terminals[:-1]]))  # first transition of every segment
-        segment = np.cumsum(np.concatenate([[0], terminals[:-1]]))  # segment id of every transition
+        starts, segment = demo_segments(terminals)  # first transition of every segment, segment id of each
         transition_pos = np.arange(n) + segment + 1  # stream position: each earlier segment adds one FIRST step
         first_pos = starts + np.arange(len(starts))
         length = n + len(starts)
