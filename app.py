@@ -18,13 +18,15 @@ import os
 import sys
 import time
 from pathlib import Path
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-import altair as alt
 import pandas as pd
 import streamlit as st
 
 from harness import analysis as A
+
+if TYPE_CHECKING:
+    import altair as alt
 from harness.results import EVALS_FILE, STATUS_FILE, load
 
 TABS = ["Runs", "Learning curves", "Table 1", "Aggregates", "Ablations", "Tuning"]
@@ -78,8 +80,10 @@ def signature(root: str) -> tuple[int, float]:
     return (n, latest)
 
 
-@st.cache_data(show_spinner="Loading results…", max_entries=4)
+@st.cache_resource(show_spinner="Loading results…", max_entries=4)
 def load_results(root: str, sig: tuple) -> tuple[pd.DataFrame, list[str]]:
+    """Everything under ``root`` (re-read when ``sig`` changes). A shared object, not a copy (no pickling of a
+    large frame on every rerun): callers must not modify it in place."""
     warnings: list[str] = []
     df = load(root, warn=warnings.append)
     if len(df):
@@ -167,6 +171,7 @@ def palette(methods: list[str]) -> list[str]:
 def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str, band: str,
                 methods: list[str]) -> alt.Chart:
     """Methods overlaid: mean line, band (SE or bootstrap CI), published curves dashed."""
+    import altair as alt  # imported on first chart: keeps the first page load light
     c = c[c["env"] == env].copy()
     c["method"] = c["algo"].map(A.algo_label)
     c["curve"] = "ours"
@@ -330,6 +335,7 @@ def tab_table1(root, sig, sel: Sel) -> None:
 
 
 def tab_aggregates(root, sig, sel: Sel) -> None:
+    import altair as alt  # imported on first chart: keeps the first page load light
     step, last_k = step_option("score", "agg")
     scores = scores_for(root, sig, sel, step, last_k)
     if scores.empty:
@@ -431,6 +437,7 @@ def read_study(path: str, mtime: float) -> list[dict]:
 
 
 def tab_tuning(root: str) -> None:
+    import altair as alt  # imported on first chart: keeps the first page load light
     tdir = Path(root) / "tuning"
     files = sorted(p for p in tdir.rglob("*") if p.suffix in (".log", ".journal") and p.is_file()) if tdir.exists() else []
     if not files:
@@ -475,7 +482,7 @@ def tab_tuning(root: str) -> None:
 
 
 def main() -> None:
-    st.set_page_config(page_title="EARL results", page_icon="📈", layout="wide")
+    st.set_page_config(page_title="EARL results", page_icon=":material/monitoring:", layout="wide")
     if "results_dir" not in st.session_state:
         st.session_state["results_dir"] = default_results()
     with st.sidebar:

@@ -94,9 +94,8 @@ class AuxCritic:
             y = target_fn(self.heads(batch["next_obs"], next_action, target=True))
             y = y.unsqueeze(1) if y.dim() == 2 else y
         loss = 0.5 * (self.heads(batch["obs"], batch["action"]) - y).square().mean(dim=2).sum(dim=1)
-        mask_dev = None if mask_host is None else torch.as_tensor(mask_host, device=self.device)
-        self.opt.step(mask_dev, torch.autograd.grad(loss.sum(), self.opt.params))
-        polyak_update(self.target_flat, self.opt.members, self.tau, mask_dev)
+        self.opt.step(mask_host, torch.autograd.grad(loss.sum(), self.opt.params))
+        polyak_update(self.target_flat, self.opt.members, self.tau, mask_host)
         return loss.detach()
 
     def state_dict(self) -> dict[str, Any]:

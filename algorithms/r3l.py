@@ -119,8 +119,7 @@ class RND:
         """One predictor step on its own squared error for members in ``mask``; per-member loss (E,)."""
         loss = self.novelty(states).mean(1)
         grads = torch.autograd.grad(loss.sum(), self.opt.params)
-        mask = host_mask(mask, len(loss))
-        self.opt.step(None if mask is None else torch.as_tensor(mask, device=self.device), grads)
+        self.opt.step(mask, grads)
         return loss.detach()
 
     def state_dict(self) -> dict:

@@ -8,6 +8,7 @@
     harness data scripted [env=NAME] [out=DIR]    scripted demonstrations (demo_source=scripted)
     harness bench env [envs=a,b] [steps=N]
     harness bench train algo=medal env=sawyer_door members=E
+    harness bench app [runs=100] [evals=300] [repeats=3] [results=DIR]   dashboard page-load time
     harness report [suite=NAME] [results=DIR] [out=DIR]
 
 Bad input gets one line on stderr naming the problem and exit code 2; nothing is written.
@@ -21,7 +22,6 @@ from pathlib import Path
 
 from harness import data as data_mod
 from harness.suites import ConfigError, parse_int
-
 
 UsageError = ConfigError  # a user error: reported as one line, exit code 2
 
@@ -51,7 +51,6 @@ def _int(key: str, v: str | None, default: int, minimum: int = 0) -> int:
 
 def cmd_list(args) -> int:
     from harness.envs import ENVS
-
     from harness.registry import ALGORITHMS, PLANNED
     from harness.suites import list_suites, load_suite
 
@@ -115,7 +114,11 @@ def cmd_bench(args) -> int:
         from harness.bench_train import bench_train_cli
 
         return bench_train_cli(parse_overrides(args.overrides))
-    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train")
+    if args.what == "app":
+        from harness.bench_app import bench_app_cli
+
+        return bench_app_cli(parse_overrides(args.overrides, {"runs", "evals", "repeats", "results"}))
+    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, app")
 
 
 def cmd_run(args) -> int:
@@ -165,8 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("overrides", nargs="*")
     d.set_defaults(fn=cmd_data)
 
-    b = sub.add_parser("bench", help="throughput benchmarks")
-    b.add_argument("what", choices=["env", "train"])
+    b = sub.add_parser("bench", help="benchmarks: env and training throughput, dashboard page-load time")
+    b.add_argument("what", choices=["env", "train", "app"])
     b.add_argument("overrides", nargs="*")
     b.set_defaults(fn=cmd_bench)
     return p

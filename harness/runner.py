@@ -198,13 +198,12 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
 
     ``should_stop`` (no arguments, called after every evaluation) ends the run early (tuning's pruner);
     ``group["study"]``/``group["trial"]``, when present, fill the results' metadata columns."""
+    from algorithms.api import DemoSet
     from harness.data import atomic_write_bytes, load_demos
     from harness.envs import get_spec
     from harness.protocol import RunSpec, train
     from harness.registry import ALGORITHMS
     from harness.results import RUN_FILE, write_status
-
-    from algorithms.api import DemoSet
 
     if threads:
         torch.set_num_threads(threads)
@@ -268,7 +267,7 @@ def print_plan(plan: Plan) -> None:
     for g in plan.groups:
         print(f"  {g['env']:<22} {g['algo']:<12} seeds={','.join(map(str, g['seeds'])):<10} steps={g['steps']:,} "
               f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}")
-    rate = 40.0  # MEDAL steps/s per run with one 2-core CPU per worker (harness bench train; GPU: faster)
+    rate = 55.0  # MEDAL steps/s per run with one 2-core CPU per worker (harness bench train: 59; GPU: faster)
     est = steps / rate / max(plan.workers, 1)
     print(f"estimated time at ~{rate:.0f} steps/s per run (2-core CPU, measured): {_fmt_time(est)}")
 

@@ -420,10 +420,9 @@ def tune_worker(setup: dict[str, Any], index: int, threads: int | None, env: dic
     if env:
         os.environ.update(env)
     optuna = _optuna()
+    import torch
     from optuna.study import MaxTrialsCallback
     from optuna.trial import TrialState
-
-    import torch
 
     if threads:
         torch.set_num_threads(threads)

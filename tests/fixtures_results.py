@@ -1,5 +1,6 @@
 """A synthetic results directory with known values, written through the harness's own writer
-(``harness.results.RunResults`` and ``write_status``), for the dashboard/report/analysis tests.
+(``harness.results.RunResults`` and ``write_status``, via ``harness.synthetic``), for the
+dashboard/report/analysis tests. ``write_big`` (the large set) lives in ``harness.synthetic``.
 
 Deployed success of run (env, algo, seed) at step s (evaluations every ``EVAL_EVERY`` steps up to
 ``STEPS``)::
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.results import RunResults, run_dir, write_status
+from harness.synthetic import metric_rows, write_big, write_run  # noqa: F401  (write_big: re-exported)
 
 SUITE = "fixture"
 ENVS = ("tabletop_manipulation", "sawyer_door")
@@ -50,26 +52,6 @@ def expected_final(env: str, algo: str) -> tuple[float, float]:
     return float(v.mean()), float(v.std(ddof=1) / math.sqrt(len(v)))
 
 
-def _rows(ident: dict, meta: dict, steps, fn) -> list[dict]:
-    rows = []
-    for step in steps:
-        for metric, value in fn(step).items():
-            rows.append({**ident, "step": int(step), "metric": metric, "value": float(value), **meta})
-    return rows
-
-
-def write_run(root: Path, suite: str, env: str, algo: str, seed: int, steps, fn, status: dict) -> Path:
-    """One run: ``fn(step) -> {metric: value}`` at each step, written once through RunResults."""
-    d = run_dir(root, suite, env, algo, seed)
-    r = RunResults(d, {"suite": suite, "env": env, "algo": algo, "seed": seed},
-                   {"config_hash": "fixture", "git_sha": "0" * 7, "demo_source": "earl", "device": "cpu", "members": 3})
-    r.rows = _rows(r.ident, r.meta, steps, fn)
-    r.flush()
-    (d / "run.yaml").write_text(f"suite: {suite}\nenv: {env}\nalgo: {algo}\nseed: {seed}\neval_every: {EVAL_EVERY}\n")
-    write_status(d, **status)
-    return d
-
-
 def metrics_at(env: str, algo: str, seed: int):
     def fn(step: int) -> dict[str, float]:
         s = success(env, algo, seed, step)
@@ -93,7 +75,7 @@ def write_fixture(root: str | Path, corrupt: bool = False, tuning: bool = True, 
                 st = {"state": "running" if state == "stale" else state, "step": STEPS, "total": STEPS,
                       "steps_per_s": 100.0, "eta_s": 0.0 if state == "done" else 50.0, "last_success": last,
                       "updated": now - 7200 if state == "stale" else now}
-                write_run(root, SUITE, env, algo, seed, steps, metrics_at(env, algo, seed), st)
+                write_run(root, SUITE, env, algo, seed, steps, metrics_at(env, algo, seed), st, EVAL_EVERY)
     if failed:
         env, algo, seed = FAILED
         write_status(run_dir(root, SUITE, env, algo, seed), state="failed", error=FAILED_ERROR + "\nsecond line",
@@ -116,7 +98,7 @@ def write_tuning(root: Path) -> Path | None:
     d = run_dir(Path(root) / "tuning" / TUNE_STUDY / "trial=0", f"tune_{TUNE_STUDY}", "sawyer_door", "medal", 0)
     r = RunResults(d, {"suite": f"tune_{TUNE_STUDY}", "env": "sawyer_door", "algo": "medal", "seed": 0},
                    {"study": TUNE_STUDY, "trial": 0, "members": 1})
-    r.rows = _rows(r.ident, r.meta, range(0, STEPS + 1, EVAL_EVERY), lambda s: {"deployed_success": 0.99})
+    r.rows = metric_rows(r.ident, r.meta, range(0, STEPS + 1, EVAL_EVERY), lambda s: {"deployed_success": 0.99})
     r.flush()
     write_status(d, state="done", step=STEPS, total=STEPS, steps_per_s=100.0, eta_s=0.0, last_success=0.99)
     try:
@@ -134,28 +116,3 @@ def write_tuning(root: Path) -> Path | None:
     study.optimize(lambda t: 1 - abs(math.log10(t.suggest_float("lr", 1e-4, 1e-2, log=True)) + 2.5)
                    + 0 * t.suggest_int("batch_size", 32, 256), n_trials=12)
     return path
-
-
-def write_big(root: str | Path, runs: int = 100, evals: int = 300) -> Path:
-    """``runs`` runs x ``evals`` evaluations (all six metrics) for the load-time check."""
-    root = Path(root)
-    envs = ("tabletop_manipulation", "sawyer_door", "sawyer_peg", "kitchen")
-    algos = ("naive", "fbrl", "r3l", "vaprl", "medal")
-    rng = np.random.default_rng(0)
-    steps = [i * 10_000 for i in range(evals)]
-    k = 0
-    while k < runs:
-        env, algo, seed = envs[k % 4], algos[(k // 4) % 5], k // 20
-        noise = rng.random(evals)
-
-        def fn(step, noise=noise):
-            i = step // 10_000
-            s = min(1.0, step / (evals * 10_000) + 0.1 * noise[i])
-            return {"deployed_success": s, "deployed_return": s, "continuing_reward": step * s,
-                    "interventions": 0, "steps_per_s": 100.0, "wall_s": step / 100}
-
-        write_run(root, "big", env, algo, seed, steps, fn,
-                  {"state": "done", "step": steps[-1], "total": steps[-1], "steps_per_s": 100.0, "eta_s": 0.0,
-                   "last_success": 1.0})
-        k += 1
-    return root

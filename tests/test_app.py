@@ -4,7 +4,6 @@ check on 100 runs x 300 evaluations."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import pytest
@@ -139,20 +138,16 @@ def test_empty_and_missing_dirs(monkeypatch, tmp_path):
     assert any("does not exist" in w for w in texts(at, "warning"))
 
 
-def test_load_time_100_runs_x_300_evals(monkeypatch, tmp_path):
-    """Cold cache: load 100 runs x 300 evaluations (6 metrics) and render the main page (Runs), then
-    the Learning curves and Table 1 tabs. Prints the times; the bound is generous (target < 3 s)."""
+def test_pages_on_100_runs_x_300_evals(monkeypatch, tmp_path):
+    """Cold caches: 100 runs x 300 evaluations (6 metrics) render on the main page (Runs), Learning curves and
+    Table 1 with no exception. Load time is measured by ``harness bench app``, not here."""
     import streamlit as st
 
     big = F.write_big(tmp_path / "big", runs=100, evals=300)
-    AppTest.from_file(APP, default_timeout=60)  # warm the import machinery, not the data cache
     st.cache_data.clear()
-    times = {}
+    st.cache_resource.clear()
     for tab in ("Runs", "Learning curves", "Table 1"):
-        t0 = time.perf_counter()
         at = run_app(monkeypatch, big, tab)
-        times[tab] = time.perf_counter() - t0
-    print("\nload time (100 runs x 300 evals, cold cache for the first): "
-          + ", ".join(f"{k} {v:.2f} s" for k, v in times.items()))
+        assert not at.exception, at.exception
     assert "100 runs with results" in " ".join(texts(at, "caption"))
-    assert times["Runs"] < 10 and times["Learning curves"] < 10
+    assert at.markdown  # the Table 1 tab drew its table

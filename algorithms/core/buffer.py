@@ -27,7 +27,6 @@ from algorithms.api import demo_segments
 
 from .nets import generator_states, host_mask, load_generator_states, member_generators
 
-
 INITIAL_ALLOCATION = 65_536  # slots per member allocated up front
 
 

@@ -84,8 +84,7 @@ class Discriminator:
         x, y = self.mix(pos, neg, mask)
         loss = F.binary_cross_entropy_with_logits(self.logits(x), y, reduction="none").mean(dim=1)  # (E,)
         grads = torch.autograd.grad(loss.sum(), self.opt.params)
-        mask = host_mask(mask, self.num_members)
-        self.opt.step(None if mask is None else torch.as_tensor(mask, device=self.device), grads)
+        self.opt.step(mask, grads)
         return {"discriminator_loss": loss.detach()}
 
     def state_dict(self) -> dict:

@@ -1,22 +1,25 @@
 """Member-batched Adam and Polyak averaging with per-member masks (ALGORITHMS.md §3.2-§3.3).
 
-Both operate on :class:`FlatMembers`: the parameters of one network re-pointed into ONE contiguous vector, so an
-optimizer step or a target update is a handful of elementwise ops over that vector (no loop over parameters or
-members). Every parameter must have a leading dimension E * k stored member-major (k = 1 for plain layers, k = copies
-for replicated heads); element j of the flat vector then belongs to member ``member_index[j]``.
+Both operate on :class:`FlatMembers`: the parameters of one network re-pointed into ONE contiguous vector. Every
+parameter must have a leading dimension E * k stored member-major (k = 1 for plain layers, k = copies for replicated
+heads), so member i's part of parameter j is one contiguous slice, ``views[i][j]``. An optimizer step or a target update
+is one multi-tensor kernel call over the slices of the members that update (no per-element Python, no mask arithmetic).
 
-Masking: members whose mask entry is False are left bitwise unchanged (parameters, Adam moments, step counters), i.e.
-exactly as in a single-seed run in which that member did not update at this step. The arithmetic uses only correctly
-rounded primitive ops (no fused lerp/addcmul), so member i's result does not depend on where its values sit in the
-vector (SIMD body vs. tail): an E-member run reproduces E single-seed runs bit for bit.
+Masking: members whose mask entry is False are not in the call and stay bitwise unchanged (parameters, Adam moments,
+step counters), exactly as in a single-seed run in which that member did not update at this step. Member i's slices
+have the same sizes whatever E is and are processed alone, so an E-member run reproduces E single-seed runs bit for bit
+(no dependence on where a value sits in a SIMD body or tail).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import nn
+
+from .nets import host_mask
 
 
 class FlatMembers:
@@ -38,35 +41,31 @@ class FlatMembers:
             for p in self.params:
                 p.data = self.flat[offset : offset + p.numel()].view_as(p)
                 offset += p.numel()
-        device = self.flat.device
-        # member of every flat element; None for E=1, where per-member scalars simply broadcast
-        self.member_index = (
-            None
-            if num_members == 1
-            else torch.cat(
-                [torch.arange(num_members, device=device).repeat_interleave(p.numel() // num_members) for p in self.params]
-            )
-        )
+        self.views = self.member_views(self.flat)
 
-    def per_element(self, values: torch.Tensor) -> torch.Tensor:
-        """Broadcast a per-member tensor (E,) to the flat layout (N,) (or (1,) when E=1)."""
-        return values if self.member_index is None else values[self.member_index]
+    def member_views(self, flat: torch.Tensor) -> list[list[torch.Tensor]]:
+        """Views of a tensor in the flat layout (the parameters themselves, or optimizer state shaped like them) as
+        ``views[i][j]``: member i's contiguous slice of parameter j (with its replicas, member-major)."""
+        per_param, offset = [], 0
+        for p in self.params:
+            per_param.append(flat[offset : offset + p.numel()].view(self.num_members, -1))
+            offset += p.numel()
+        return [[v[i] for v in per_param] for i in range(self.num_members)]
 
-    def flat_grad(self, grads: Sequence[torch.Tensor | None] | None = None) -> torch.Tensor:
-        """Concatenate ``grads`` (default: the ``.grad`` fields; None counts as zero) into the flat layout."""
-        grads = [p.grad for p in self.params] if grads is None else grads
-        return torch.cat([(torch.zeros_like(p) if g is None else g).reshape(-1) for p, g in zip(self.params, grads)])
-
-    def masked_assign(self, dst: torch.Tensor, new: torch.Tensor, mask: torch.Tensor | None) -> None:
-        """dst <- new for members with mask True (all members when mask is None)."""
-        dst.copy_(new if mask is None else torch.where(self.per_element(mask), new, dst))
+    def active(self, mask) -> list[int]:
+        """The members to update: all for ``mask=None``, else the indices where the (E,) bool mask is True."""
+        if mask is None:
+            return list(range(self.num_members))
+        return np.flatnonzero(host_mask(mask, self.num_members)).tolist()
 
 
 class MemberAdam:
     """Adam (PyTorch's formula incl. bias correction; no weight decay, no amsgrad) with per-member step counters.
 
-    ``step(mask)`` only changes members with mask True: parameters, exp_avg, exp_avg_sq and step. Matches
-    ``torch.optim.Adam`` on an E=1 run to float rounding (~1e-7 relative).
+    ``step(mask)`` only changes members with mask True: parameters, exp_avg, exp_avg_sq and step. The arithmetic is
+    PyTorch's own fused Adam kernel (``torch._fused_adam_``, the ``fused=True`` path of ``torch.optim.Adam``: one pass
+    over each tensor), applied to the list of per-member slices of the members that update. Every member's slice of a
+    parameter has the same size wherever it sits, so member i is processed exactly as in an E=1 run, bit for bit.
     """
 
     def __init__(
@@ -83,34 +82,39 @@ class MemberAdam:
         self.exp_avg = torch.zeros_like(flat)
         self.exp_avg_sq = torch.zeros_like(flat)
         self.step_count = torch.zeros(num_members, dtype=torch.float32, device=flat.device)  # like torch's float step
+        self._views = {"param": self.members.views, "exp_avg": self.members.member_views(self.exp_avg),
+                       "exp_avg_sq": self.members.member_views(self.exp_avg_sq)}
 
     @property
     def params(self) -> list[nn.Parameter]:
         return self.members.params
 
     @torch.no_grad()
-    def step(self, mask: torch.Tensor | None = None, grads: Sequence[torch.Tensor | None] | None = None) -> None:
-        """One Adam step for the members in ``mask`` (bool (E,) on the parameters' device; None = all members).
-
-        ``grads``: gradients aligned with the parameters (e.g. from ``torch.autograd.grad``); default their ``.grad``.
-        """
+    def step(self, mask=None, grads: Sequence[torch.Tensor | None] | None = None) -> None:
+        """One Adam step for the members in ``mask`` (bool (E,), host array or tensor, see ``nets.host_mask``; None =
+        all members). ``grads``: gradients aligned with the parameters (e.g. from ``torch.autograd.grad``); default
+        their ``.grad`` (None counts as zero)."""
+        members, E = self.members, self.members.num_members
+        active = members.active(mask)
+        if not active:
+            return
+        grads = [p.grad for p in self.params] if grads is None else grads
+        grads = [(torch.zeros_like(p) if g is None else g).reshape(E, -1) for p, g in zip(self.params, grads)]
+        if len(active) == E:
+            self.step_count += 1
+        else:
+            self.step_count[active] += 1
+        views, n = self._views, len(self.params)
         beta1, beta2 = self.betas
-        members = self.members
-        g = members.flat_grad(grads)
-        step = self.step_count + 1
-        # bias corrections in float64 like torch's Python-float path, then one float32 scalar per member
-        step64 = step.double()
-        step_size = members.per_element((self.lr / (1 - beta1**step64)).float())
-        inv_bc2_sqrt = members.per_element((1 / torch.sqrt(1 - beta2**step64)).float())
-
-        exp_avg = self.exp_avg + (g - self.exp_avg) * (1 - beta1)  # = lerp(exp_avg, g, 1 - beta1)
-        exp_avg_sq = self.exp_avg_sq * beta2 + (g * g) * (1 - beta2)
-        denom = exp_avg_sq.sqrt() * inv_bc2_sqrt + self.eps
-        param = members.flat - (exp_avg * step_size) / denom
-
-        for dst, new in ((self.exp_avg, exp_avg), (self.exp_avg_sq, exp_avg_sq), (members.flat, param)):
-            members.masked_assign(dst, new, mask)
-        self.step_count.copy_(step if mask is None else torch.where(mask, step, self.step_count))
+        torch._fused_adam_(
+            [v for i in active for v in views["param"][i]],
+            [g[i] for i in active for g in grads],
+            [v for i in active for v in views["exp_avg"][i]],
+            [v for i in active for v in views["exp_avg_sq"][i]],
+            [],
+            [self.step_count[i] for i in active for _ in range(n)],
+            lr=self.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=self.eps, amsgrad=False, maximize=False,
+        )
 
     def state_dict(self) -> dict:
         return {
@@ -130,6 +134,10 @@ class MemberAdam:
 
 
 @torch.no_grad()
-def polyak_update(target: FlatMembers, source: FlatMembers, tau: float, mask: torch.Tensor | None = None) -> None:
-    """target <- (1 - tau) * target + tau * source for members in ``mask`` (ALGORITHMS.md §3.2 step 4)."""
-    target.masked_assign(target.flat, target.flat + (source.flat - target.flat) * tau, mask)
+def polyak_update(target: FlatMembers, source: FlatMembers, tau: float, mask=None) -> None:
+    """target <- target + tau * (source - target) for members in ``mask`` (ALGORITHMS.md §3.2 step 4): one
+    ``torch._foreach_lerp_`` over the per-member slices of the members that update."""
+    active = target.active(mask)
+    if active:
+        dst, src = target.views, source.views
+        torch._foreach_lerp_([v for i in active for v in dst[i]], [v for i in active for v in src[i]], tau)

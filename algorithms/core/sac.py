@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from . import manual
 from .nets import (
     MemberMLP,
     MemberTrunk,
@@ -155,25 +156,33 @@ class SAC:
     def td_target(self, batch: dict, reward: torch.Tensor, eps: torch.Tensor) -> torch.Tensor:
         """y = scale * r + gamma * m * (min_j Qtarget_j(o', a') - alpha * log pi(a'|o')), a' = tanh(mu + sigma * eps)
         sampled at o' = batch["next_obs"] (§3.2 step 1); (E, B)."""
-        cfg = self.cfg
-        next_action, next_log_prob = self.actor.sample(batch["next_obs"], eps)
+        return self._td_target(batch, reward, *self.actor(batch["next_obs"]), eps)
+
+    @torch.no_grad()
+    def _td_target(self, batch, reward, next_mean, next_log_std, eps) -> torch.Tensor:
+        u = next_mean + next_log_std.exp() * eps
+        next_action, next_log_prob = torch.tanh(u), squashed_gaussian_log_prob(u, eps, next_log_std)
         target_v = self.critic_target(batch["next_obs"], next_action).min(dim=1).values
         target_v = target_v - self.alpha[:, None] * next_log_prob
         m = self.bootstrap_mask(batch["terminal"], batch["truncated"])
-        return cfg.reward_scale * reward + cfg.gamma * m * target_v
+        return self.cfg.reward_scale * reward + self.cfg.gamma * m * target_v
 
+    @torch.no_grad()
     def update(self, batch: dict, mask=None, reward: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """One SAC update (§3.2, in order: critic, actor, temperature, Polyak) for the members in ``mask``.
 
         batch: obs (E,B,O), action (E,B,A), reward (E,B), next_obs (E,B,O), terminal (E,B) bool, truncated (E,B) bool.
-        mask: bool (E,) (CPU tensor / array preferred, see nets.host_mask) or None for all members; masked-out members
-        are left bitwise unchanged, including optimizer state and random streams.
+        mask: bool (E,) (host array / CPU tensor preferred, see nets.host_mask) or None for all members; masked-out
+        members are left bitwise unchanged, including optimizer state and random streams.
         reward: optional (E,B) replacement for batch["reward"] (e.g. MEDAL's discriminator reward, §9.6).
         Returns per-member metrics (E,) as tensors (no host sync).
+
+        Gradients come from the hand-written backward passes of :mod:`manual` (no autograd graph). The actor is
+        evaluated once on [o'; o]: its parameters do not change before the actor step, so the target's next action and
+        the actor loss's action come from one forward pass, as they would from two.
         """
         cfg, E = self.cfg, self.num_members
         mask_host = host_mask(mask, E)
-        mask_dev = None if mask_host is None else torch.as_tensor(mask_host).to(self.device, non_blocking=True)
         obs, action = batch["obs"], batch["action"]
         reward = batch["reward"] if reward is None else reward
         B = obs.shape[1]
@@ -181,44 +190,95 @@ class SAC:
         noise = member_randn(self.update_generators, (3, B, self.act_dim), mask_host, self.device)
         alpha = self.alpha
 
-        # 1. critic
-        target_q = self.td_target(batch, reward, noise[:, 0])
-        q = self.critic(obs, action)  # (E, 2, B)
-        # 0.5 * (MSE1 + MSE2) per member; summing over members keeps their gradients apart
-        critic_loss = 0.5 * (q - target_q.unsqueeze(1)).square().mean(dim=2).sum(dim=1)
-        self._step(self.critic_opt, critic_loss, mask_dev)
+        actor_out, actor_cache = self._actor_forward(torch.cat([batch["next_obs"], obs], dim=1))
+        mean, log_std_raw = actor_out.chunk(2, dim=-1)
+        log_std = log_std_raw.clamp(cfg.log_std_min, cfg.log_std_max)
 
-        # 2. actor: mean(alpha * log pi(a|o) - min Q(o, a)), a ~ pi(.|o); gradients taken w.r.t. actor params only, so
-        # nothing leaks into the critic's next step (the [MC] pitfall of §3.6 cannot occur)
-        new_action, log_prob = self.actor.sample(obs, noise[:, 1])
-        q_pi = self.critic(obs, new_action).min(dim=1).values
-        actor_loss = (alpha[:, None] * log_prob - q_pi).mean(dim=1)
-        self._step(self.actor_opt, actor_loss, mask_dev)
+        # 1. critic: 0.5 * (MSE1 + MSE2) per member
+        target_q = self._td_target(batch, reward, mean[:, :B], log_std[:, :B], noise[:, 0])
+        q, critic_cache = self._critic_forward(obs, action)  # (E, 2, B)
+        diff = q - target_q.unsqueeze(1)
+        critic_loss = 0.5 * diff.square().mean(dim=2).sum(dim=1)
+        critic_grads, _ = self._critic_backward(critic_cache, diff / B, weights=True)
+        self.critic_opt.step(mask_host, critic_grads)
 
-        # 3. temperature: FRESH sample from the updated actor; loss mean(alpha * (-log pi - H_target).detach())
-        with torch.no_grad():
-            _, fresh_log_prob = self.actor.sample(obs, noise[:, 2])
-        alpha_loss = (self.log_alpha.exp()[:, None] * (-fresh_log_prob - self.target_entropy)).mean(dim=1)
-        self._step(self.alpha_opt, alpha_loss, mask_dev)
+        # 2. actor: mean(alpha * log pi(a|o) - min Q(o, a)), a = tanh(u), u = mu + sigma * eps, with the updated critic
+        # (gradients reach the actor's parameters only)
+        mu, ls, eps = mean[:, B:], log_std[:, B:], noise[:, 1]
+        std = ls.exp()
+        u = mu + std * eps
+        new_action, log_prob = torch.tanh(u), squashed_gaussian_log_prob(u, eps, ls)
+        q_pi, q_cache = self._critic_forward(obs, new_action)
+        q_min = q_pi.min(dim=1)
+        actor_loss = (alpha[:, None] * log_prob - q_min.values).mean(dim=1)
+        d_q = torch.zeros_like(q_pi).scatter_(1, q_min.indices.unsqueeze(1), -1.0 / B)
+        _, d_action = self._critic_backward(q_cache, d_q, weights=False)
+        d_log_prob = (alpha / B)[:, None, None]
+        # d log pi / du = 2 tanh(u) (from the tanh Jacobian); d log pi / d log sigma = -1 at fixed eps
+        d_u = d_log_prob * 2.0 * new_action + d_action * (1.0 - new_action * new_action)
+        in_range = (log_std_raw[:, B:] >= cfg.log_std_min) & (log_std_raw[:, B:] <= cfg.log_std_max)
+        d_log_std = (d_u * std * eps - d_log_prob) * in_range
+        self.actor_opt.step(mask_host, self._actor_backward(actor_cache, torch.cat([d_u, d_log_std], -1), B))
+
+        # 3. temperature: FRESH sample from the updated actor; loss mean(alpha * (-log pi - H_target)), whose gradient
+        # with respect to log alpha is the loss itself
+        fresh_mean, fresh_log_std = self.actor(obs)
+        u = fresh_mean + fresh_log_std.exp() * noise[:, 2]
+        fresh_log_prob = squashed_gaussian_log_prob(u, noise[:, 2], fresh_log_std)
+        alpha_loss = self.log_alpha.exp() * (-fresh_log_prob - self.target_entropy).mean(dim=1)
+        self.alpha_opt.step(mask_host, [alpha_loss])
 
         # 4. target critic
-        polyak_update(self.target_params, self.critic_opt.members, cfg.tau, mask_dev)
+        polyak_update(self.target_params, self.critic_opt.members, cfg.tau, mask_host)
 
         return {
-            "critic_loss": critic_loss.detach(),
-            "actor_loss": actor_loss.detach(),
-            "alpha_loss": alpha_loss.detach(),
+            "critic_loss": critic_loss,
+            "actor_loss": actor_loss,
+            "alpha_loss": alpha_loss,
             "alpha": self.alpha,
-            "q1": q[:, 0].detach().mean(dim=1),
+            "q1": q[:, 0].mean(dim=1),
             "target_q": target_q.mean(dim=1),
             "log_prob": fresh_log_prob.mean(dim=1),
             "batch_reward": reward.mean(dim=1),
         }
 
-    @staticmethod
-    def _step(opt: MemberAdam, member_losses: torch.Tensor, mask: torch.Tensor | None) -> None:
-        grads = torch.autograd.grad(member_losses.sum(), opt.params)
-        opt.step(mask, grads)
+    # forward/backward of the two networks with the hand-written passes of :mod:`manual`
+    def _actor_forward(self, obs):
+        trunk = self.actor.trunk if self.cfg.use_trunk else None
+        feat, trunk_cache = manual.trunk_forward(trunk, obs) if trunk else (obs, None)
+        out, mlp_cache = manual.mlp_forward(self.actor.mlp, feat)
+        return out, (trunk_cache, mlp_cache)
+
+    def _actor_backward(self, cache, d_out, B) -> list[torch.Tensor]:
+        """Gradients for the rows B: of the [o'; o] forward (the actor-loss half) only."""
+        trunk_cache, mlp_cache = cache
+        half = [x[:, B:] for x in mlp_cache]
+        feature_cols = slice(0, None) if self.cfg.use_trunk else None
+        grads, d_feat = manual.mlp_backward(self.actor.mlp, half, d_out, input_cols=feature_cols)
+        if not self.cfg.use_trunk:
+            return grads
+        trunk_half = tuple(t[:, B:].contiguous() for t in trunk_cache)  # the layer-norm kernel wants contiguous
+        return manual.trunk_backward(self.actor.trunk, trunk_half, d_feat) + grads
+
+    def _critic_forward(self, obs, action):
+        trunk = self.critic.trunk if self.cfg.use_trunk else None
+        feat, trunk_cache = manual.trunk_forward(trunk, obs) if trunk else (obs, None)
+        q, mlp_cache = manual.mlp_forward(self.critic.heads, torch.cat([feat, action], dim=-1))
+        E = self.num_members
+        return q.view(E, 2, -1), (trunk_cache, mlp_cache, feat.shape[-1])
+
+    def _critic_backward(self, cache, d_q, weights: bool):
+        """(parameter gradients or [], dL/d action (E, B, A)) from dL/dQ (E, 2, B)."""
+        trunk_cache, mlp_cache, n_feat = cache
+        E, _, B = d_q.shape
+        cols = slice(0, None) if weights else slice(n_feat, None)  # features too when training the critic
+        grads, d_in = manual.mlp_backward(self.critic.heads, mlp_cache, d_q.reshape(2 * E, B, 1), weights, cols)
+        d_in = d_in.view(E, 2, B, -1).sum(dim=1)  # both heads read the same input
+        if not weights:
+            return [], d_in
+        if self.cfg.use_trunk:
+            grads = manual.trunk_backward(self.critic.trunk, trunk_cache, d_in[..., :n_feat]) + grads
+        return grads, d_in[..., n_feat:]
 
     # -----------------------------------------------------------------------------------------------------------------
     def state_dict(self) -> dict:

@@ -1,0 +1,87 @@
+"""Forward and hand-written backward passes of the member networks (used by the SAC update, ALGORITHMS.md §3).
+
+The SAC update needs gradients of three small losses through 2 x 256 MLPs. On a CPU the autograd engine, its graph
+bookkeeping and the extra elementwise passes it makes cost as much as the matrix products themselves, so the update
+runs the layers below instead: each ``*_forward`` returns its output and a cache of the activations, each ``*_backward``
+returns the parameter gradients (in ``module.parameters()`` order) and, where asked, the gradient of the input. The math
+is the textbook one (tests compare every gradient with autograd's); shapes are member-batched (E, B, features) as in
+:mod:`nets`.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from .nets import MemberMLP, MemberTrunk
+
+
+def _t(x: Tensor) -> Tensor:
+    return x.transpose(1, 2)
+
+
+def _relu_backward(grad: Tensor, out: Tensor) -> Tensor:
+    """d/dz relu(z) given the upstream gradient and relu's OUTPUT: autograd's own kernel (one pass; a masked_fill with
+    a comparison is ~15x slower on the CPU)."""
+    return torch.ops.aten.threshold_backward(grad, out, 0)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Linear -> LayerNorm -> Tanh feature layer
+
+
+def trunk_forward(trunk: MemberTrunk, x: Tensor) -> tuple[Tensor, tuple]:
+    lin, norm = trunk.linear, trunk.norm
+    z = torch.baddbmm(lin.bias, x, lin.weight)
+    normed, mean, rstd = torch.native_layer_norm(z, (norm.dim,), None, None, norm.eps)
+    h = torch.tanh(torch.addcmul(norm.bias, normed, norm.weight))
+    return h, (x, z, normed, mean, rstd, h)
+
+
+def trunk_backward(trunk: MemberTrunk, cache: tuple, dh: Tensor) -> list[Tensor]:
+    """Gradients of [linear.weight, linear.bias, norm.weight, norm.bias] (the observation needs none)."""
+    x, z, normed, mean, rstd, h = cache
+    dy = dh * (1.0 - h * h)
+    d_gamma = (dy * normed).sum(1, keepdim=True)
+    d_beta = dy.sum(1, keepdim=True)
+    dz = torch.ops.aten.native_layer_norm_backward(
+        dy * trunk.norm.weight, z, (trunk.norm.dim,), mean, rstd, None, None, [True, False, False])[0]
+    return [torch.bmm(_t(x), dz), dz.sum(1, keepdim=True), d_gamma, d_beta]
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# Linear -> ReLU -> ... -> Linear
+
+
+def mlp_forward(mlp: MemberMLP, x: Tensor) -> tuple[Tensor, list[Tensor]]:
+    """Like ``MemberMLP.forward`` (replicas expanded, output (E * copies, B, out)); the cache is every layer's input."""
+    if mlp.copies > 1:
+        E, B, d = x.shape
+        x = x.unsqueeze(1).expand(E, mlp.copies, B, d).reshape(E * mlp.copies, B, d)
+    inputs = []
+    for i, layer in enumerate(mlp.layers):
+        inputs.append(x)
+        x = torch.baddbmm(layer.bias, x, layer.weight)
+        if i < len(mlp.layers) - 1:
+            x = torch.relu_(x)
+    return x, inputs
+
+
+def mlp_backward(mlp: MemberMLP, inputs: list[Tensor], dout: Tensor, weights: bool = True,
+                 input_cols: slice | None = None) -> tuple[list[Tensor], Tensor | None]:
+    """Back through the layers from ``dout`` (E * copies, B, out).
+
+    weights: also return the parameter gradients ([w0, b0, w1, b1, ...]); False skips those products (e.g. the actor
+    loss, which only needs dQ/da). input_cols: return the gradient of these input columns (per replica; None: none).
+    """
+    grads: list[Tensor] = []
+    d = dout
+    for i in range(len(mlp.layers) - 1, -1, -1):
+        layer, x = mlp.layers[i], inputs[i]
+        if weights:
+            grads[:0] = [torch.bmm(_t(x), d), d.sum(1, keepdim=True)]
+        if i > 0:
+            d = _relu_backward(torch.bmm(d, _t(layer.weight)), x)
+        elif input_cols is not None:
+            return grads, torch.bmm(d, _t(layer.weight[:, input_cols]))
+    return grads, None

@@ -1,0 +1,203 @@
+"""``harness bench app [runs=100] [evals=300] [repeats=3] [results=DIR]``: dashboard page-load time.
+
+Writes a synthetic results set (``runs`` runs x ``evals`` evaluations, :func:`harness.synthetic.write_big`)
+into a temporary directory, or uses ``results=DIR``; starts one ``streamlit run app.py`` server on it
+and opens a fresh headless-Chromium page ``repeats`` times. Per visit: the main page (until the Runs
+tab's first state count and status table are visible, page and JS load included) and the Learning
+curves tab (from the click until every env's chart is drawn). Visit 1 is cold (the first after the
+server started: empty data cache); later visits are warm. Target: main page < 3 s.
+
+Needs the ``playwright`` Python package and Debian's ``chromium`` (``apt-get install chromium``;
+``/usr/bin/chromium`` or ``HARNESS_CHROMIUM``); ``playwright install`` is not used. The helpers
+:func:`serve` and :func:`chromium` are shared with ``tests/test_browser.py``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+APP = ROOT / "app.py"
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+VIEWPORT = {"width": 1500, "height": 1100}
+TARGET_MAIN_S = 3.0
+
+METRIC = '[data-testid="stMetric"]'  # Runs tab: state counts
+DATAFRAME = '[data-testid="stDataFrame"]'  # Runs tab: status table
+CHART_DRAWN = '[data-testid="stVegaLiteChart"] canvas, [data-testid="stVegaLiteChart"] svg'
+
+
+def chromium_path() -> str | None:
+    """``HARNESS_CHROMIUM`` (default /usr/bin/chromium) if it exists, else ``chromium`` on PATH."""
+    path = os.environ.get("HARNESS_CHROMIUM", "/usr/bin/chromium")
+    return path if Path(path).exists() else shutil.which("chromium")
+
+
+def missing() -> str | None:
+    """Why the browser checks cannot run (playwright or chromium absent), or None."""
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        return "playwright (pip install playwright) is not installed"
+    if chromium_path() is None:
+        return (f"chromium not found at {os.environ.get('HARNESS_CHROMIUM', '/usr/bin/chromium')} "
+                "(apt-get install chromium, or set HARNESS_CHROMIUM)")
+    return None
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextlib.contextmanager
+def serve(results: Path, log_path: Path, app: Path = APP, start_timeout_s: float = 60):
+    """``streamlit run app.py`` on ``results`` at a free 127.0.0.1 port; yields the URL once
+    ``/_stcore/health`` answers. Raises RuntimeError (with the server log's tail) if it does not start."""
+    port = free_port()
+    env = {**os.environ, "HARNESS_RESULTS": str(results)}
+    url = f"http://127.0.0.1:{port}"
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "streamlit", "run", str(app), "--server.headless", "true",
+             "--server.port", str(port), "--server.address", "127.0.0.1", "--browser.gatherUsageStats", "false",
+             "--server.fileWatcherType", "none", "--", "--results", str(results)],
+            cwd=Path(app).parent, env=env, stdout=log, stderr=subprocess.STDOUT,
+        )
+        try:
+            deadline = time.time() + start_timeout_s
+            while True:
+                try:
+                    if urllib.request.urlopen(url + "/_stcore/health", timeout=2).status == 200:
+                        break
+                except OSError:
+                    pass
+                if proc.poll() is not None or time.time() > deadline:
+                    log.flush()
+                    raise RuntimeError(f"streamlit did not start ({log_path}): "
+                                       + Path(log_path).read_text()[-2000:])
+                time.sleep(0.2)
+            yield url
+        finally:
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
+@contextlib.contextmanager
+def chromium():
+    """Headless Chromium (Debian's, see :func:`chromium_path`) through Playwright; yields the browser."""
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=chromium_path(), args=CHROMIUM_ARGS)
+        try:
+            yield browser
+        finally:
+            browser.close()
+
+
+def chart_count(results: Path) -> int:
+    """Charts the Learning curves tab draws by default: one per env with results (tuning trials left out)."""
+    return len({p.relative_to(results).parts[1] for p in Path(results).glob("*/*/*/seed=*/evals.parquet")
+                if p.relative_to(results).parts[0] != "tuning"})
+
+
+def time_visit(browser, url: str, charts: int, timeout_s: float = 120) -> tuple[float, float | None]:
+    """One fresh page: (main page s, learning curves s); curves is None when there are no charts."""
+    ms = timeout_s * 1000
+    page = browser.new_page(viewport=VIEWPORT)
+    try:
+        t0 = time.perf_counter()
+        page.goto(url, wait_until="domcontentloaded", timeout=ms)
+        page.locator(METRIC).first.wait_for(timeout=ms)
+        page.locator(DATAFRAME).first.wait_for(timeout=ms)
+        main = time.perf_counter() - t0
+        curves = None
+        if charts:
+            t0 = time.perf_counter()
+            page.get_by_role("tab", name="Learning curves").click(timeout=ms)
+            page.locator(CHART_DRAWN).nth(charts - 1).wait_for(timeout=ms)
+            curves = time.perf_counter() - t0
+        if page.locator('[data-testid="stException"]').count():
+            raise RuntimeError("the dashboard shows an exception: " + page.inner_text("body")[:1000])
+        return main, curves
+    finally:
+        page.close()
+
+
+def _s(v: float | None) -> str:
+    return "-" if v is None else f"{v:.2f}"
+
+
+def bench_app(runs: int = 100, evals: int = 300, repeats: int = 3, results: str | Path | None = None,
+              timeout_s: float = 120, log=print) -> dict:
+    """Time ``repeats`` page visits against one server; prints a table. Returns ``{"rows": [{visit,
+    cold, main_s, curves_s}], "cold": row 1, "warm_median": {main_s, curves_s} or None}``."""
+    from harness.synthetic import write_big
+
+    with tempfile.TemporaryDirectory(prefix="harness_bench_app_") as tmp:
+        if results is None:
+            t0 = time.perf_counter()
+            root = write_big(Path(tmp) / "results", runs=runs, evals=evals)
+            what = f"synthetic {runs} runs x {evals} evals (written in {time.perf_counter() - t0:.1f} s)"
+        else:
+            root, what = Path(results), f"results={results}"
+        charts = chart_count(root)
+        t0 = time.perf_counter()
+        with serve(root, Path(tmp) / "streamlit.log") as url, chromium() as browser:
+            log(f"bench app: {what}; server up in {time.perf_counter() - t0:.1f} s; "
+                f"{repeats} visit(s), fresh page each; {charts} learning-curve chart(s)")
+            log(f"{'visit':>5}  {'':<4}  {'main page s':>11}  {'learning curves s':>17}")
+            rows = []
+            for i in range(1, repeats + 1):
+                main, curves = time_visit(browser, url, charts, timeout_s)
+                rows.append({"visit": i, "cold": i == 1, "main_s": main, "curves_s": curves})
+                log(f"{i:>5}  {'cold' if i == 1 else 'warm':<4}  {main:>11.2f}  {_s(curves):>17}")
+    warm = rows[1:]
+    med = None
+    if warm:
+        med = {"main_s": statistics.median(r["main_s"] for r in warm),
+               "curves_s": None if charts == 0 else statistics.median(r["curves_s"] for r in warm)}
+    cold = rows[0]
+    log(f"main page: median warm {_s(med and med['main_s'])} s, cold {cold['main_s']:.2f} s "
+        f"(target < {TARGET_MAIN_S:g} s); learning curves: median warm {_s(med and med['curves_s'])} s, "
+        f"cold {_s(cold['curves_s'])} s")
+    return {"rows": rows, "cold": cold, "warm_median": med}
+
+
+def bench_app_cli(ov: dict[str, str]) -> int:
+    from harness.cli import UsageError, _int
+
+    runs, evals = _int("runs", ov.get("runs"), 100, 1), _int("evals", ov.get("evals"), 300, 1)
+    repeats = _int("repeats", ov.get("repeats"), 3, 1)
+    results = ov.get("results")
+    if results is not None and not Path(results).is_dir():
+        raise UsageError(f"results directory {results!r} does not exist")
+    if not APP.exists():
+        raise UsageError(f"{APP} not found: run bench app from a source checkout")
+    why = missing()
+    if why:
+        raise UsageError(f"bench app needs a browser: {why}")
+    from playwright.sync_api import Error as PlaywrightError
+
+    try:
+        bench_app(runs, evals, repeats, results)
+    except (RuntimeError, PlaywrightError) as e:  # server did not start, a page timed out or crashed
+        print("harness: error: bench app: " + " ".join(str(e).split())[:2000], file=sys.stderr)
+        return 1
+    return 0
