@@ -2,10 +2,11 @@
 
 Writes a synthetic results set (``runs`` runs x ``evals`` evaluations, :func:`harness.synthetic.write_big`)
 into a temporary directory, or uses ``results=DIR``; starts one ``streamlit run app.py`` server on it
-and opens a fresh headless-Chromium page ``repeats`` times. Per visit: the main page (until the Runs
+and opens headless-Chromium pages: one cold visit (the first after the server started, empty browser
+cache), then ``repeats - 1`` pairs of a new user (server data cache warm, empty browser cache) and a
+reload (browser cache holding Streamlit's static files). Per visit: the main page (until the Runs
 tab's first state count and status table are visible, page and JS load included) and the Learning
-curves tab (from the click until every env's chart is drawn). Visit 1 is cold (the first after the
-server started: empty data cache); later visits are warm. Target: main page < 3 s.
+curves tab (from the click until every env's chart is drawn). Target: main page < 3 s.
 
 Needs the ``playwright`` Python package and Debian's ``chromium`` (``apt-get install chromium``;
 ``/usr/bin/chromium`` or ``HARNESS_CHROMIUM``); ``playwright install`` is not used. The helpers
@@ -117,10 +118,11 @@ def chart_count(results: Path) -> int:
                 if p.relative_to(results).parts[0] != "tuning"})
 
 
-def time_visit(browser, url: str, charts: int, timeout_s: float = 120) -> tuple[float, float | None]:
-    """One fresh page: (main page s, learning curves s); curves is None when there are no charts."""
+def time_visit(context, url: str, charts: int, timeout_s: float = 120) -> tuple[float, float | None]:
+    """One new page in a browser ``context``: (main page s, learning curves s); curves is None when there are no
+    charts. A context is a browser profile: a new one has an empty cache, a used one has Streamlit's static files."""
     ms = timeout_s * 1000
-    page = browser.new_page(viewport=VIEWPORT)
+    page = context.new_page()
     try:
         t0 = time.perf_counter()
         page.goto(url, wait_until="domcontentloaded", timeout=ms)
@@ -146,8 +148,8 @@ def _s(v: float | None) -> str:
 
 def bench_app(runs: int = 100, evals: int = 300, repeats: int = 3, results: str | Path | None = None,
               timeout_s: float = 120, log=print) -> dict:
-    """Time ``repeats`` page visits against one server; prints a table. Returns ``{"rows": [{visit,
-    cold, main_s, curves_s}], "cold": row 1, "warm_median": {main_s, curves_s} or None}``."""
+    """Time page visits against one server: a cold one, then ``repeats - 1`` pairs of (new user, reload); prints a
+    table. Returns ``{"rows": [{visit, kind, main_s, curves_s}], "summary": {kind: medians}}``."""
     from harness.synthetic import write_big
 
     with tempfile.TemporaryDirectory(prefix="harness_bench_app_") as tmp:
@@ -160,24 +162,32 @@ def bench_app(runs: int = 100, evals: int = 300, repeats: int = 3, results: str 
         charts = chart_count(root)
         t0 = time.perf_counter()
         with serve(root, Path(tmp) / "streamlit.log") as url, chromium() as browser:
-            log(f"bench app: {what}; server up in {time.perf_counter() - t0:.1f} s; "
-                f"{repeats} visit(s), fresh page each; {charts} learning-curve chart(s)")
-            log(f"{'visit':>5}  {'':<4}  {'main page s':>11}  {'learning curves s':>17}")
+            log(f"bench app: {what}; server up in {time.perf_counter() - t0:.1f} s; 1 cold visit, then "
+                f"{repeats - 1} x (new user, reload); {charts} learning-curve chart(s)")
+            log("  cold: first visit after the server started, empty browser cache")
+            log("  new user: server data cache warm, empty browser cache (a colleague opening the link)")
+            log("  reload: server data cache warm, browser cache holding Streamlit's static files")
+            log(f"{'visit':>5}  {'':<8}  {'main page s':>11}  {'learning curves s':>17}")
+            home = browser.new_context(viewport=VIEWPORT)
             rows = []
-            for i in range(1, repeats + 1):
-                main, curves = time_visit(browser, url, charts, timeout_s)
-                rows.append({"visit": i, "cold": i == 1, "main_s": main, "curves_s": curves})
-                log(f"{i:>5}  {'cold' if i == 1 else 'warm':<4}  {main:>11.2f}  {_s(curves):>17}")
-    warm = rows[1:]
-    med = None
-    if warm:
-        med = {"main_s": statistics.median(r["main_s"] for r in warm),
-               "curves_s": None if charts == 0 else statistics.median(r["curves_s"] for r in warm)}
-    cold = rows[0]
-    log(f"main page: median warm {_s(med and med['main_s'])} s, cold {cold['main_s']:.2f} s "
-        f"(target < {TARGET_MAIN_S:g} s); learning curves: median warm {_s(med and med['curves_s'])} s, "
-        f"cold {_s(cold['curves_s'])} s")
-    return {"rows": rows, "cold": cold, "warm_median": med}
+            kinds = ["cold"] + ["new user", "reload"] * (repeats - 1)
+            for i, kind in enumerate(kinds, 1):
+                context = home if kind != "new user" else browser.new_context(viewport=VIEWPORT)
+                main, curves = time_visit(context, url, charts, timeout_s)
+                if context is not home:
+                    context.close()
+                rows.append({"visit": i, "kind": kind, "main_s": main, "curves_s": curves})
+                log(f"{i:>5}  {kind:<8}  {main:>11.2f}  {_s(curves):>17}")
+    summary = {}
+    for kind in ("cold", "new user", "reload"):
+        sel = [r for r in rows if r["kind"] == kind]
+        if sel:
+            summary[kind] = {"main_s": statistics.median(r["main_s"] for r in sel),
+                             "curves_s": None if charts == 0 else statistics.median(r["curves_s"] for r in sel)}
+    log(f"main page (median; target < {TARGET_MAIN_S:g} s): "
+        + ", ".join(f"{k} {v['main_s']:.2f} s" for k, v in summary.items())
+        + "; learning curves: " + ", ".join(f"{k} {_s(v['curves_s'])} s" for k, v in summary.items()))
+    return {"rows": rows, "summary": summary}
 
 
 def bench_app_cli(ov: dict[str, str]) -> int:

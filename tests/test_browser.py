@@ -72,10 +72,10 @@ def test_bench_app_tiny(capsys):
     out = bench_app(runs=4, evals=20, repeats=2)
     printed = capsys.readouterr().out
     rows = out["rows"]
-    assert [r["visit"] for r in rows] == [1, 2] and [r["cold"] for r in rows] == [True, False]
+    assert [(r["visit"], r["kind"]) for r in rows] == [(1, "cold"), (2, "new user"), (3, "reload")]
     assert all(r["main_s"] > 0 and r["curves_s"] > 0 for r in rows), rows
-    assert out["cold"] is rows[0] and out["warm_median"]["main_s"] == rows[1]["main_s"]
+    assert {k: v["main_s"] for k, v in out["summary"].items()} == {r["kind"]: r["main_s"] for r in rows}
     lines = printed.splitlines()
     assert any(line.split()[:2] == ["1", "cold"] for line in lines), printed
-    assert any(line.split()[:2] == ["2", "warm"] for line in lines), printed
-    assert "median warm" in printed and "target < 3 s" in printed, printed
+    assert any(line.split()[:3] == ["3", "reload", f"{rows[2]['main_s']:.2f}"] for line in lines), printed
+    assert "target < 3 s" in printed, printed
