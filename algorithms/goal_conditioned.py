@@ -29,6 +29,7 @@ import torch
 
 from algorithms.api import Algorithm, DemoSet, Task
 from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.core import manual
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.nets import generator_states, host_mask, load_generator_states, member_generators, member_randn
 from algorithms.core.optim import FlatMembers, MemberAdam, polyak_update
@@ -93,8 +94,16 @@ class AuxCritic:
             next_action, _ = actor.sample(batch["next_obs"], eps)
             y = target_fn(self.heads(batch["next_obs"], next_action, target=True))
             y = y.unsqueeze(1) if y.dim() == 2 else y
-        loss = 0.5 * (self.heads(batch["obs"], batch["action"]) - y).square().mean(dim=2).sum(dim=1)
-        self.opt.step(mask_host, torch.autograd.grad(loss.sum(), self.opt.params))
+            x, cache = manual.critic_forward(self.net, batch["obs"], batch["action"])
+        # dL/d head output through the squash by autograd on the small (E, 2, B) tensor; the networks' backward
+        # passes are the hand-written ones of the SAC critic (algorithms.core.manual)
+        x = x.requires_grad_()
+        heads = x if self.squash is None else self.squash(x)
+        loss = 0.5 * (heads - y).square().mean(dim=2).sum(dim=1)
+        (d_x,) = torch.autograd.grad(loss.sum(), x)
+        with torch.no_grad():
+            grads, _ = manual.critic_backward(self.net, cache, d_x)
+        self.opt.step(mask_host, grads)
         polyak_update(self.target_flat, self.opt.members, self.tau, mask_host)
         return loss.detach()
 

@@ -85,3 +85,54 @@ def mlp_backward(mlp: MemberMLP, inputs: list[Tensor], dout: Tensor, weights: bo
         elif input_cols is not None:
             return grads, torch.bmm(d, _t(layer.weight[:, input_cols]))
     return grads, None
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The SAC networks (``sac.Actor``, ``sac.Critic``: an optional trunk, then a MemberMLP)
+
+
+def _trunk(module) -> MemberTrunk | None:
+    return module.trunk if isinstance(module.trunk, MemberTrunk) else None
+
+
+def actor_forward(actor, obs: Tensor) -> tuple[Tensor, tuple]:
+    """Raw actor output (E, B, 2A) (mean, unclamped log sigma) and its cache."""
+    trunk = _trunk(actor)
+    feat, trunk_cache = trunk_forward(trunk, obs) if trunk else (obs, None)
+    out, mlp_cache = mlp_forward(actor.mlp, feat)
+    return out, (trunk_cache, mlp_cache)
+
+
+def actor_backward(actor, cache: tuple, d_out: Tensor, rows: slice = slice(None)) -> list[Tensor]:
+    """Parameter gradients from dL/d output (E, B', 2A) for the batch ``rows`` of the forward pass only."""
+    trunk_cache, mlp_cache = cache
+    trunk = _trunk(actor)
+    grads, d_feat = mlp_backward(actor.mlp, [x[:, rows] for x in mlp_cache], d_out,
+                                 input_cols=slice(None) if trunk else None)
+    if not trunk:
+        return grads
+    rows_cache = tuple(t[:, rows].contiguous() for t in trunk_cache)  # the layer-norm kernel wants contiguous
+    return trunk_backward(trunk, rows_cache, d_feat) + grads
+
+
+def critic_forward(critic, obs: Tensor, action: Tensor) -> tuple[Tensor, tuple]:
+    """Head outputs (E, 2, B) at (obs, action) and the cache."""
+    trunk = _trunk(critic)
+    feat, trunk_cache = trunk_forward(trunk, obs) if trunk else (obs, None)
+    q, mlp_cache = mlp_forward(critic.heads, torch.cat([feat, action], dim=-1))
+    return q.view(obs.shape[0], critic.heads.copies, -1), (trunk_cache, mlp_cache, feat.shape[-1])
+
+
+def critic_backward(critic, cache: tuple, d_q: Tensor, weights: bool = True) -> tuple[list[Tensor], Tensor]:
+    """(parameter gradients, or [] when ``weights`` is False; dL/d action (E, B, A)) from dL/d heads (E, 2, B)."""
+    trunk_cache, mlp_cache, n_feat = cache
+    E, copies, B = d_q.shape
+    cols = slice(0, None) if weights else slice(n_feat, None)  # the features too when training the critic
+    grads, d_in = mlp_backward(critic.heads, mlp_cache, d_q.reshape(E * copies, B, 1), weights, cols)
+    d_in = d_in.view(E, copies, B, -1).sum(dim=1)  # every head reads the same input
+    if not weights:
+        return [], d_in
+    trunk = _trunk(critic)
+    if trunk:
+        grads = trunk_backward(trunk, trunk_cache, d_in[..., :n_feat]) + grads
+    return grads, d_in[..., n_feat:]

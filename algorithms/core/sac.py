@@ -190,16 +190,16 @@ class SAC:
         noise = member_randn(self.update_generators, (3, B, self.act_dim), mask_host, self.device)
         alpha = self.alpha
 
-        actor_out, actor_cache = self._actor_forward(torch.cat([batch["next_obs"], obs], dim=1))
+        actor_out, actor_cache = manual.actor_forward(self.actor, torch.cat([batch["next_obs"], obs], dim=1))
         mean, log_std_raw = actor_out.chunk(2, dim=-1)
         log_std = log_std_raw.clamp(cfg.log_std_min, cfg.log_std_max)
 
         # 1. critic: 0.5 * (MSE1 + MSE2) per member
         target_q = self._td_target(batch, reward, mean[:, :B], log_std[:, :B], noise[:, 0])
-        q, critic_cache = self._critic_forward(obs, action)  # (E, 2, B)
+        q, critic_cache = manual.critic_forward(self.critic, obs, action)  # (E, 2, B)
         diff = q - target_q.unsqueeze(1)
         critic_loss = 0.5 * diff.square().mean(dim=2).sum(dim=1)
-        critic_grads, _ = self._critic_backward(critic_cache, diff / B, weights=True)
+        critic_grads, _ = manual.critic_backward(self.critic, critic_cache, diff / B)
         self.critic_opt.step(mask_host, critic_grads)
 
         # 2. actor: mean(alpha * log pi(a|o) - min Q(o, a)), a = tanh(u), u = mu + sigma * eps, with the updated critic
@@ -208,17 +208,18 @@ class SAC:
         std = ls.exp()
         u = mu + std * eps
         new_action, log_prob = torch.tanh(u), squashed_gaussian_log_prob(u, eps, ls)
-        q_pi, q_cache = self._critic_forward(obs, new_action)
+        q_pi, q_cache = manual.critic_forward(self.critic, obs, new_action)
         q_min = q_pi.min(dim=1)
         actor_loss = (alpha[:, None] * log_prob - q_min.values).mean(dim=1)
         d_q = torch.zeros_like(q_pi).scatter_(1, q_min.indices.unsqueeze(1), -1.0 / B)
-        _, d_action = self._critic_backward(q_cache, d_q, weights=False)
+        _, d_action = manual.critic_backward(self.critic, q_cache, d_q, weights=False)
         d_log_prob = (alpha / B)[:, None, None]
         # d log pi / du = 2 tanh(u) (from the tanh Jacobian); d log pi / d log sigma = -1 at fixed eps
         d_u = d_log_prob * 2.0 * new_action + d_action * (1.0 - new_action * new_action)
         in_range = (log_std_raw[:, B:] >= cfg.log_std_min) & (log_std_raw[:, B:] <= cfg.log_std_max)
         d_log_std = (d_u * std * eps - d_log_prob) * in_range
-        self.actor_opt.step(mask_host, self._actor_backward(actor_cache, torch.cat([d_u, d_log_std], -1), B))
+        d_out = torch.cat([d_u, d_log_std], -1)
+        self.actor_opt.step(mask_host, manual.actor_backward(self.actor, actor_cache, d_out, slice(B, None)))
 
         # 3. temperature: FRESH sample from the updated actor; loss mean(alpha * (-log pi - H_target)), whose gradient
         # with respect to log alpha is the loss itself
@@ -241,44 +242,6 @@ class SAC:
             "log_prob": fresh_log_prob.mean(dim=1),
             "batch_reward": reward.mean(dim=1),
         }
-
-    # forward/backward of the two networks with the hand-written passes of :mod:`manual`
-    def _actor_forward(self, obs):
-        trunk = self.actor.trunk if self.cfg.use_trunk else None
-        feat, trunk_cache = manual.trunk_forward(trunk, obs) if trunk else (obs, None)
-        out, mlp_cache = manual.mlp_forward(self.actor.mlp, feat)
-        return out, (trunk_cache, mlp_cache)
-
-    def _actor_backward(self, cache, d_out, B) -> list[torch.Tensor]:
-        """Gradients for the rows B: of the [o'; o] forward (the actor-loss half) only."""
-        trunk_cache, mlp_cache = cache
-        half = [x[:, B:] for x in mlp_cache]
-        feature_cols = slice(0, None) if self.cfg.use_trunk else None
-        grads, d_feat = manual.mlp_backward(self.actor.mlp, half, d_out, input_cols=feature_cols)
-        if not self.cfg.use_trunk:
-            return grads
-        trunk_half = tuple(t[:, B:].contiguous() for t in trunk_cache)  # the layer-norm kernel wants contiguous
-        return manual.trunk_backward(self.actor.trunk, trunk_half, d_feat) + grads
-
-    def _critic_forward(self, obs, action):
-        trunk = self.critic.trunk if self.cfg.use_trunk else None
-        feat, trunk_cache = manual.trunk_forward(trunk, obs) if trunk else (obs, None)
-        q, mlp_cache = manual.mlp_forward(self.critic.heads, torch.cat([feat, action], dim=-1))
-        E = self.num_members
-        return q.view(E, 2, -1), (trunk_cache, mlp_cache, feat.shape[-1])
-
-    def _critic_backward(self, cache, d_q, weights: bool):
-        """(parameter gradients or [], dL/d action (E, B, A)) from dL/dQ (E, 2, B)."""
-        trunk_cache, mlp_cache, n_feat = cache
-        E, _, B = d_q.shape
-        cols = slice(0, None) if weights else slice(n_feat, None)  # features too when training the critic
-        grads, d_in = manual.mlp_backward(self.critic.heads, mlp_cache, d_q.reshape(2 * E, B, 1), weights, cols)
-        d_in = d_in.view(E, 2, B, -1).sum(dim=1)  # both heads read the same input
-        if not weights:
-            return [], d_in
-        if self.cfg.use_trunk:
-            grads = manual.trunk_backward(self.critic.trunk, trunk_cache, d_in[..., :n_feat]) + grads
-        return grads, d_in[..., n_feat:]
 
     # -----------------------------------------------------------------------------------------------------------------
     def state_dict(self) -> dict:
