@@ -284,6 +284,7 @@ def tab_curves(root, sig, sel: Sel) -> None:
         else:
             pub = published_curves_for(tuple(sources), tuple(sorted(c["env"].unique())),
                                        tuple(sorted(c["algo"].unique())), metric, window, False)
+            pub = A.same_pairs(pub, c)
             if clip and len(pub):
                 xmax = c.groupby("env")["step"].max()
                 pub = pub[pub["step"] <= pub["env"].map(xmax)]

@@ -178,6 +178,13 @@ def select(df: pd.DataFrame, metric: str | None = None, **eq: Any) -> pd.DataFra
     return df[mask]
 
 
+def same_pairs(df: pd.DataFrame, ours: pd.DataFrame) -> pd.DataFrame:
+    """Rows of ``df`` (e.g. published curves) whose (env, algo) pair also occurs in ``ours``: a method run on one
+    env only is not drawn from the paper on the others."""
+    pairs = pd.MultiIndex.from_frame(ours[["env", "algo"]].drop_duplicates())
+    return df[pd.MultiIndex.from_frame(df[["env", "algo"]]).isin(pairs)]
+
+
 # --------------------------------------------------------------------------------------------
 # common grid, curves, smoothing, bootstrap
 

@@ -158,7 +158,7 @@ def report_cli(overrides: list[str]) -> int:
     if srcs:
         try:
             pub = A.select(load_published(), metric, source=srcs)
-            pub = A.select(pub, env=list(curves["env"].unique()), algo=list(curves["algo"].unique()))
+            pub = A.same_pairs(pub, curves)
             pub_curves = A.learning_curves(pub, metric, window=window)
         except (DataNotFoundError, OSError) as e:
             print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)

@@ -222,3 +222,13 @@ def test_run_status(fixture_dir):
     later = A.run_status(fixture_dir, now=time.time() + 10 * 3600)
     assert (later["state"] == "stale").sum() == 3  # running and resumed ones go stale too
     assert A.format_duration(3725) == "1h02m" and A.format_duration(math.inf) == "?"
+
+
+def test_published_overlay_keeps_only_our_env_algo_pairs():
+    """Oracle run on door only and RISC on tabletop only: the paper's RISC-on-door and oracle-on-tabletop curves
+    are not drawn beside them."""
+    ours = pd.concat([long({0: {10: 0.0}}, env="door", algo="oracle"), long({0: {10: 0.0}}, env="table", algo="risc")])
+    pub = pd.concat([long({0: {10: 1.0}}, env=e, algo=a) for e in ("door", "table", "peg") for a in ("oracle", "risc")])
+    kept = A.same_pairs(pub, ours)
+    assert sorted(zip(kept.env, kept.algo)) == [("door", "oracle"), ("table", "risc")]
+    assert A.same_pairs(pub.iloc[:0], ours).empty
