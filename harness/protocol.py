@@ -62,8 +62,13 @@ class RunSpec:
         return [run_dir(Path(self.results), self.suite, self.env, self.algo, s) for s in self.seeds]
 
     def checkpoint_path(self) -> Path:
-        seeds = "-".join(str(s) for s in self.seeds)
-        return Path(self.results) / self.suite / self.env / self.algo / "checkpoints" / f"seeds={seeds}" / CHECKPOINT_FILE
+        return checkpoint_path(Path(self.results), self.suite, self.env, self.algo, self.seeds)
+
+
+def checkpoint_path(results: Path, suite: str, env: str, algo: str, seeds: list[int]) -> Path:
+    """Where the group of ``seeds`` (trained together, E = len(seeds)) keeps its one checkpoint."""
+    tag = "-".join(str(s) for s in seeds)
+    return results / suite / env / algo / "checkpoints" / f"seeds={tag}" / CHECKPOINT_FILE
 
 
 @dataclass

@@ -65,11 +65,17 @@ def _device(v: str) -> str:
     return v
 
 
-def git_sha() -> str:
-    root = Path(__file__).resolve().parent.parent
+def git_sha(root: Path | None = None) -> str:
+    """HEAD's SHA, with ``-dirty`` when tracked files differ from it (the results then come from code that
+    no commit holds); ``unknown`` outside a git checkout, e.g. an installed wheel."""
+    root = root or Path(__file__).resolve().parent.parent
     try:
-        out = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5)
-        return out.stdout.strip() or "unknown"
+        git = ["git", "-C", str(root)]
+        sha = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5).stdout.strip()
+        if not sha:
+            return "unknown"
+        dirty = subprocess.run([*git, "diff", "--quiet", "HEAD", "--"], capture_output=True, timeout=5).returncode == 1
+        return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"
 
@@ -260,15 +266,35 @@ def progress_line(label: str, p) -> str:
             f"ETA {_fmt_time(p.eta_s)}  success {succ}")
 
 
+def steps_done(group: dict[str, Any]) -> int:
+    """Env steps of ``group`` (summed over its seeds) that a run would not redo: finished runs count in full,
+    unfinished ones up to their last checkpoint (the latest multiple of ``checkpoint_every`` they reported)."""
+    from harness.protocol import checkpoint_path
+    from harness.results import read_status, run_dir
+
+    where = (Path(group["results"]), group["suite"], group["env"], group["algo"])
+    ckpt = checkpoint_path(*where, group["seeds"])
+    done = 0
+    for s in group["seeds"]:
+        st = read_status(run_dir(*where, s)) or {}
+        if st.get("state") == "done":
+            done += group["steps"]
+        elif ckpt.exists():
+            done += min(int(st.get("step", 0)) // group["checkpoint_every"] * group["checkpoint_every"], group["steps"])
+    return done
+
+
 def print_plan(plan: Plan) -> None:
     steps = sum(g["steps"] * len(g["seeds"]) for g in plan.groups)
+    left = steps - sum(steps_done(g) for g in plan.groups)
     print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g['seeds']) for g in plan.groups)} run(s), "
-          f"{steps:,} env steps in all, {plan.workers} worker(s)")
+          f"{steps:,} env steps in all" + (f" ({left:,} left to run; the rest is done or checkpointed)" if left < steps else "")
+          + f", {plan.workers} worker(s)")
     for g in plan.groups:
         print(f"  {g['env']:<22} {g['algo']:<12} seeds={','.join(map(str, g['seeds'])):<10} steps={g['steps']:,} "
               f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}")
     rate = 55.0  # MEDAL steps/s per run with one 2-core CPU per worker (harness bench train: 59; GPU: faster)
-    est = steps / rate / max(plan.workers, 1)
+    est = left / rate / max(plan.workers, 1)
     print(f"estimated time at ~{rate:.0f} steps/s per run (2-core CPU, measured): {_fmt_time(est)}")
 
 

@@ -89,6 +89,41 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     assert not list(tmp_path.iterdir())
 
 
+def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
+    """A resumed suite's plan and time estimate count what is left: finished runs not at all, unfinished
+    ones from their last checkpoint (a multiple of checkpoint_every), not from their last progress line."""
+    from harness.protocol import checkpoint_path
+    from harness.results import run_dir, write_status
+
+    where = (tmp_path, "adhoc", "sawyer_door", "medal")
+    write_status(run_dir(*where, 0), state="done", step=1000)
+    write_status(run_dir(*where, 1), state="running", step=650)
+    args = ["run", "algo=medal", "env=sawyer_door", "seeds=2", "steps=1000", "eval_every=100",
+            "checkpoint_every=200", "members=2", "workers=1", f"results={tmp_path}", "--dry-run"]
+    assert main(args) == 0
+    assert "2,000 env steps in all (1,000 left to run;" in capsys.readouterr().out  # no checkpoint: seed 1 redone
+    checkpoint_path(*where, [0, 1]).parent.mkdir(parents=True)
+    checkpoint_path(*where, [0, 1]).touch()
+    assert main(args) == 0
+    assert "2,000 env steps in all (400 left to run;" in capsys.readouterr().out  # 1000 - 600 of seed 1
+
+
+def test_git_sha_marks_uncommitted_changes(tmp_path):
+    from harness.runner import git_sha
+
+    assert git_sha(tmp_path) == "unknown"  # not a checkout
+    git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (tmp_path / "a.py").write_text("x = 1\n")
+    subprocess.run([*git, "add", "a.py"], check=True)
+    subprocess.run([*git, "commit", "-qm", "a"], check=True)
+    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    (tmp_path / "notes.txt").write_text("untracked files do not count\n")
+    assert git_sha(tmp_path) == head
+    (tmp_path / "a.py").write_text("x = 2\n")
+    assert git_sha(tmp_path) == head + "-dirty"
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [
