@@ -20,6 +20,9 @@ end; they hold the algorithm's full state (networks, optimizers, buffers, RNGs, 
 envs' simulator and wrapper state, the current observations and the counters. Re-running the same
 run resumes from the checkpoint and truncates each results table to that step, so the results
 equal an uninterrupted run's (timing metrics aside).
+
+Non-finite actions (in training or evaluation) raise :class:`DivergedError` naming the member and step
+before they reach an env or a buffer; the check reads the host action array, so it costs no device sync.
 """
 
 from __future__ import annotations
@@ -82,6 +85,20 @@ class Progress:
     success: list[float]
 
 
+class DivergedError(RuntimeError):
+    """The algorithm returned non-finite actions: a NaN or inf loss has reached its policy."""
+
+
+def check_actions(actions: np.ndarray, seeds: list[int], when: str) -> None:
+    """Raise :class:`DivergedError` naming the members whose ``actions`` (E, act_dim) hold NaN or inf, before
+    they reach an env or a buffer (so the last checkpoint and the results written so far stay good)."""
+    ok = np.isfinite(actions).all(axis=-1)
+    if not ok.all():
+        bad = ", ".join(str(s) for s, good in zip(seeds, ok) if not good)
+        raise DivergedError(f"non-finite actions (NaN/inf) from seed {bad} {when}: the networks diverged "
+                            "(a NaN or inf loss); lower the learning rates or check the rewards")
+
+
 class Interaction:
     """The E train envs and the current observations: one protocol step at a time."""
 
@@ -97,10 +114,12 @@ class Interaction:
         self.obs = np.stack([env.reset(seed=s)[0] for env, s in zip(self.envs, self.seeds)])
         algo.on_reset(self.obs, np.ones(len(self.envs), dtype=bool))
 
-    def step(self, algo: Algorithm) -> None:
-        """act -> env step -> observe -> reset the members that hit H_T or asked for a reset."""
+    def step(self, algo: Algorithm, step: int | None = None) -> None:
+        """act -> env step -> observe -> reset the members that hit H_T or asked for a reset. ``step`` (the
+        protocol step being taken) only names where a :class:`DivergedError` happened."""
         E = len(self.envs)
         actions = algo.act(self.obs)
+        check_actions(actions, self.seeds, "in training" + (f" at step {step:,}" if step is not None else ""))
         next_obs = np.empty_like(self.obs)  # fresh each step: algorithms may keep references
         hard = np.zeros(E, dtype=bool)
         rewards = np.zeros(E)
@@ -149,6 +168,7 @@ def evaluate(algo: Algorithm, envs: list, seeds: list[int], step: int, episodes:
         hit = np.zeros(E, dtype=bool)
         for _ in range(horizon):
             actions = algo.eval_act(obs)
+            check_actions(actions, seeds, f"in the evaluation at step {step:,}")
             for i, env in enumerate(envs):
                 obs[i], r, _, _, info = env.step(actions[i])
                 returns[i] += r
@@ -230,7 +250,7 @@ def train(
     rate, t_mark, s_mark = 0.0, time.perf_counter(), step
     wall0, t_start, t_last_report = wall, t_mark, t_mark
     while step < spec.steps:
-        inter.step(algo)
+        inter.step(algo, step + 1)
         step += 1
         if step % spec.eval_every == 0 or step == spec.steps:
             now = time.perf_counter()

@@ -88,6 +88,13 @@ def write_status(directory: Path, **fields: Any) -> None:
     atomic_write_bytes(Path(directory) / STATUS_FILE, json.dumps(fields, indent=1, default=str).encode())
 
 
+def update_status(directory: Path, **fields: Any) -> None:
+    """``write_status`` keeping the fields not given (e.g. the step and total of a run that failed)."""
+    old = read_status(directory) or {}
+    old.pop("updated", None)
+    write_status(directory, **{**old, **fields})
+
+
 def read_status(directory: Path) -> dict[str, Any] | None:
     p = Path(directory) / STATUS_FILE
     try:

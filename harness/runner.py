@@ -209,7 +209,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
     from harness.envs import get_spec
     from harness.protocol import RunSpec, train
     from harness.registry import ALGORITHMS
-    from harness.results import RUN_FILE, write_status
+    from harness.results import RUN_FILE, update_status
 
     if threads:
         torch.set_num_threads(threads)
@@ -248,7 +248,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
     except Exception as e:  # noqa: BLE001 - recorded per run, the suite goes on
         err = f"{type(e).__name__}: {' '.join(str(e).split())}"
         for d in dirs:
-            write_status(d, state="failed", error=err, traceback=traceback.format_exc())
+            update_status(d, state="failed", steps_per_s=0.0, eta_s=math.inf, error=err, traceback=traceback.format_exc())
         return f"{label}: {err}"
 
 

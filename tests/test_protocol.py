@@ -110,6 +110,59 @@ def test_algorithm_requested_resets_are_interventions(tmp_path):
     assert inter[0] == 5 and inter[1] == 0  # only member 0 asked
 
 
+@dataclass
+class _NanCfg(_Cfg):
+    nan_from: int = 300  # member 1 acts NaN from this many steps on (protocol step nan_from + 1)
+    in_eval: bool = False  # or its deployed policy does, from the first evaluation
+
+
+class Diverging(Scripted):
+    """The scripted expert until its member 1 returns NaN actions, as a diverged network would."""
+
+    Config = _NanCfg
+
+    def act(self, obs):
+        a = super().act(obs)
+        if self.t >= self.cfg.nan_from:
+            a[1] = np.nan
+        return a
+
+    def eval_act(self, obs):
+        a = super().eval_act(obs)
+        if self.cfg.in_eval:
+            a[1] = np.inf
+        return a
+
+
+@requires_data
+@pytest.mark.parametrize("in_eval, where, steps_logged", [
+    (False, "from seed 1 in training at step 301:", [0, 200]),
+    (True, "from seed 1 in the evaluation at step 0:", []),
+])
+def test_nan_actions_stop_the_run_with_one_line_and_keep_what_was_written(in_eval, where, steps_logged, tmp_path,
+                                                                          monkeypatch, capsys):
+    """A diverged member (NaN/inf actions) ends the run before the action reaches an env or buffer: one error line
+    naming the seed and step, exit 1, results and status kept as of the last evaluation, status ``failed``."""
+    from harness.cli import main
+    from harness.registry import ALGORITHMS
+    from harness.results import read_status
+
+    monkeypatch.setitem(ALGORITHMS, "diverging", Diverging)
+    code = main(["run", "algo=diverging", "env=tabletop_manipulation", "seeds=2", "members=2", "steps=600",
+                 "eval_every=200", "checkpoint_every=200", "eval_episodes=1", "workers=1", f"results={tmp_path}",
+                 f"diverging.in_eval={in_eval}"])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 1 and len(err) == 1, err
+    assert "DivergedError: non-finite actions (NaN/inf) " + where in err[0]
+    df = load(tmp_path)
+    assert sorted(df["step"].unique()) == steps_logged
+    for seed in (0, 1):
+        st = read_status(tmp_path / "adhoc" / "tabletop_manipulation" / "diverging" / f"seed={seed}")
+        assert st["state"] == "failed" and "DivergedError" in st["error"]
+        assert st.get("step") == (steps_logged[-1] if steps_logged else None)  # failed at the step-0 evaluation
+        assert st.get("total") == (600 if steps_logged else None)
+
+
 def test_evaluate_any_step_success_and_deterministic_seeding():
     class Still(Scripted):
         def eval_act(self, obs):
