@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     import altair as alt
 from harness.results import EVALS_FILE, STATUS_FILE, load
 
-TABS = ["Runs", "Learning curves", "Table 1", "Aggregates", "Ablations", "Tuning"]
+TABS = ["Runs", "Learning curves", "Table 1", "Aggregates", "Ablations", "Reproduction", "Tuning"]
 SOURCES = ["risc_paper", "earl_benchmark"]
 CURVE_METRICS = {
     "deployed_success": "Deployed success",
@@ -478,6 +478,97 @@ def tab_tuning(root: str) -> None:
                 st.dataframe(s["trials"], hide_index=True)
 
 
+def reproduction_suites() -> list[str]:
+    """Suites in suites/ whose runs are checked against the published curves (they have ``cells``)."""
+    from harness.suites import list_suites, load_suite
+
+    out = []
+    for name in list_suites():
+        try:
+            if "cells" in load_suite(name)[1]:
+                out.append(name)
+        except Exception:  # noqa: BLE001 - a broken suite file is reported by `harness run`, not here
+            pass
+    return sorted(out, key=lambda n: (n != "reproduction", n))
+
+
+def cell_chart(ladder, cell, ours: pd.DataFrame, pub: pd.DataFrame | None, verdicts: list[str]) -> alt.Chart:
+    """Our seeds (thin) and mean (thick), the published seeds (thin) and mean (thick, dashed), windows shaded."""
+    import altair as alt
+
+    from harness import reproduction as R
+
+    frames = []
+    o = R.our_curves(ours, ladder.suite, cell)
+    if len(o):
+        frames += [o.assign(curve="ours", line="seed " + o["seed"].astype(str), thick=False),
+                   o.groupby("step", as_index=False)["value"].mean().assign(curve="ours", line="ours: mean", thick=True)]
+    if pub is not None and cell.checks:
+        p = R.published_curves(pub, cell.checks[0], cell.env)
+        p = p[p["step"] <= cell.steps]
+        if len(p):
+            frames += [p.assign(curve="published", line="published seed " + p["seed"].astype(str), thick=False),
+                       p.groupby("step", as_index=False)["value"].mean().assign(curve="published",
+                                                                               line="published: mean", thick=True)]
+    x = alt.X("step:Q", title="environment steps", axis=alt.Axis(format="~s"), scale=alt.Scale(domain=[0, cell.steps]))
+    windows = pd.DataFrame([{"lo": c.lo, "hi": c.hi} for c in cell.checks])
+    layers = [alt.Chart(windows).mark_rect(opacity=0.15, color="#ff7f0e").encode(x="lo:Q", x2="hi:Q")] if len(windows) else []
+    if frames:
+        d = pd.concat(frames, ignore_index=True)[["step", "value", "curve", "line", "thick"]]
+        color = alt.Color("curve:N", scale=alt.Scale(domain=["ours", "published"], range=["#1f77b4", "#555555"]),
+                          legend=alt.Legend(title=None, orient="bottom"))
+        base = alt.Chart(d).encode(x=x, y=alt.Y("value:Q", title="deployed success", scale=alt.Scale(domain=[0, 1])),
+                                   color=color, detail="line:N",
+                                   tooltip=["line", "step", alt.Tooltip("value:Q", format=".2f")])
+        layers += [base.transform_filter(~alt.datum.thick).mark_line(strokeWidth=0.8, opacity=0.45),
+                   base.transform_filter(alt.datum.thick).mark_line(strokeWidth=2.5).encode(
+                       strokeDash=alt.StrokeDash("curve:N", scale=alt.Scale(domain=["ours", "published"],
+                                                                            range=[[1, 0], [6, 3]]), legend=None))]
+    title = alt.TitleParams(f"{A.algo_label(cell.name)} · {A.env_label(cell.env)}", subtitle=verdicts)
+    return alt.layer(*layers).properties(title=title, height=260)
+
+
+def tab_reproduction(root: str, sig: tuple) -> None:
+    from harness import reproduction as R
+
+    suites = reproduction_suites()
+    if not suites:
+        st.info("No suite with `cells` in suites/ (see docs/reproduction.md).")
+        return
+    name = st.selectbox("reproduction suite", suites, key="repro_suite")
+    ladder = R.load_ladder(name)
+    df, _ = load_results(root, sig)
+    ours = df if len(df) else pd.DataFrame(columns=["suite", "env", "algo", "seed", "step", "metric", "value"])
+    t = R.ladder_table(ladder, ours)
+    done = t["status"].isin(["pass", "fail"])
+    c1, c2, c3, c4 = st.columns(4)
+    c1.metric("checks", len(t))
+    c2.metric("pass", int((t["status"] == "pass").sum()))
+    c3.metric("fail", int((t["status"] == "fail").sum()))
+    c4.metric("running", int((~done).sum()))
+    view = t.assign(ours_per_seed=[", ".join("-" if math.isnan(x) else f"{x:.2f}" for x in v) for v in t["ours_per_seed"]],
+                    published_range=[f"{a:.2f}-{b:.2f}" for a, b in zip(t["published_min"], t["published_max"])],
+                    accepted=[f"{a:.2f}-{b:.2f}" for a, b in t["band"]])
+    st.dataframe(view[["method", "env", "budget", "seeds", "window", "published", "published_range", "accepted", "ours",
+                       "ours_per_seed", "verdict"]], hide_index=True,
+                 column_config={"published": st.column_config.NumberColumn("published mean", format="%.2f"),
+                                "ours": st.column_config.NumberColumn("ours: seed mean", format="%.2f"),
+                                "budget": st.column_config.NumberColumn("budget", format="%d")})
+    st.caption(f"A check passes when our seed-mean of the window means lies in [published min - {ladder.widen:g}, "
+               f"published max + {ladder.widen:g}] (the per-seed range of the published seeds, widened); it is running "
+               "until every seed has all its evaluations in the window. docs/reproduction.md explains the rule.")
+    pub, err = load_published_curves()
+    if pub is None:
+        st.info(f"Published curves unavailable: {err}")
+    for i in range(0, len(ladder.cells), 3):
+        cols = st.columns(3)
+        for col, cell in zip(cols, ladder.cells[i:i + 3]):
+            rows = t[(t["method"] == cell.name) & (t["env"] == cell.env)]
+            verdicts = [f"{w}: {v}" for w, v in zip(rows["window"], rows["verdict"])]
+            with col:
+                st.altair_chart(cell_chart(ladder, cell, ours, pub, verdicts), width="stretch", height=330)
+
+
 # ------------------------------------------------------------------------------------------
 # page
 
@@ -537,6 +628,8 @@ def main() -> None:
                 tab_runs(root, sel.tuning)
             elif name == "Tuning":
                 tab_tuning(root)
+            elif name == "Reproduction":
+                tab_reproduction(root, sig)
             elif not len(df) or not envs or not algos:
                 st.info("No evaluations for this selection yet (see the Runs tab).")
             elif name == "Learning curves":

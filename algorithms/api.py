@@ -93,7 +93,11 @@ class AlgoConfig:
         for f in fields(cls):
             if f.name in d:
                 setattr(out, f.name, _coerce(f.name, d[f.name], getattr(out, f.name)))
+        out.validate()
         return out
+
+    def validate(self) -> None:
+        """Raise ValueError naming the key when a value is outside what the algorithm accepts."""
 
 
 def parse_int(name: str, value: Any) -> int:

@@ -52,6 +52,19 @@ class GCConfig(SACAlgoConfig):
     value_actions: int = 5  # num_actions_value_computation
 
 
+@torch.no_grad()
+def policy_value(heads: Callable[[torch.Tensor, torch.Tensor], torch.Tensor], actor: Actor, obs: torch.Tensor,
+                 generators: list[torch.Generator], act_dim: int, mask=None, n: int = 5) -> torch.Tensor:
+    """Mean over n actions a ~ pi(.|o) of min_j heads(o, a)_j, for obs (E, N, O) -> (E, N); ``heads`` returns
+    (E, 2, B) (a twin-head critic). Noise from each member's ``generators``; members outside ``mask`` draw none and
+    their rows are meaningless."""
+    E, N, _ = obs.shape
+    rep = obs.repeat_interleave(n, dim=1)
+    eps = member_randn(generators, (N * n, act_dim), host_mask(mask, E), obs.device)
+    action, _ = actor.sample(rep, eps)
+    return heads(rep, action).min(dim=1).values.view(E, N, n).mean(-1)
+
+
 class AuxCritic:
     """Twin-head critic with the SAC critic's architecture (trunk, two heads on concat(features, a)), its own
     Polyak target, Adam and per-member noise streams; ``squash`` maps head outputs (e.g. to [0, 1])."""
@@ -74,15 +87,9 @@ class AuxCritic:
         x = (self.target if target else self.net)(obs, action)
         return x if self.squash is None else self.squash(x)
 
-    @torch.no_grad()
     def policy_value(self, actor: Actor, obs: torch.Tensor, mask=None, n: int = 5) -> torch.Tensor:
-        """Mean over n actions a ~ pi(.|o) of min_j head_j(o, a), for obs (E, N, O) -> (E, N) (8.1, 14.3).
-        Members outside ``mask`` draw no noise; their rows are meaningless."""
-        E, N, _ = obs.shape
-        rep = obs.repeat_interleave(n, dim=1)
-        eps = member_randn(self.value_gens, (N * n, self.act_dim), host_mask(mask, E), self.device)
-        action, _ = actor.sample(rep, eps)
-        return self.heads(rep, action).min(dim=1).values.view(E, N, n).mean(-1)
+        """Mean over n actions a ~ pi(.|o) of min_j head_j(o, a), for obs (E, N, O) -> (E, N) (8.1, 14.3)."""
+        return policy_value(self.heads, actor, obs, self.value_gens, self.act_dim, mask, n)
 
     def update(self, actor: Actor, batch: dict, target_fn: Callable[[torch.Tensor], torch.Tensor], mask=None):
         """One step on 0.5 * sum_j MSE(head_j(o, a), y), y = target_fn(target heads at (o', a')), a' ~ pi(.|o');
@@ -140,6 +147,7 @@ class GoalConditioned(Algorithm):
         self._obs = np.zeros((E, O), dtype=np.float32)
         self._action = np.zeros((E, A), dtype=np.float32)
         self._switch = np.zeros(E, dtype=bool)
+        self.phase_obs = np.zeros((E, O), dtype=np.float32)  # env observation at the start of the newest phase
         self.timers = Timers(device)
 
     # -- hooks -------------------------------------------------------------------------------------
@@ -157,6 +165,11 @@ class GoalConditioned(Algorithm):
     def update_aux(self, batch: dict) -> None:
         """Auxiliary-critic update on the SAC update's batch (before SAC's, as in 14.6 step 4)."""
 
+    def success_ends_phase(self) -> bool:
+        """Whether reaching the goal is terminal and ends the phase (RISC, 14.1). When False, success only earns the
+        reward and the phase runs to its step limit (the original VaPRL code's default wrapper, 8.5)."""
+        return True
+
     # -- the protocol interface ------------------------------------------------------------------
     def on_reset(self, obs: np.ndarray, mask: np.ndarray) -> None:
         """Start (or hard reset): a forward phase (14.1)."""
@@ -165,6 +178,7 @@ class GoalConditioned(Algorithm):
         self._begin_phase(obs, mask)
 
     def _begin_phase(self, obs: np.ndarray, mask: np.ndarray) -> None:
+        self.phase_obs = obs  # the state each new phase starts from (read by goal hooks)
         self.goal[mask] = self.phase_goals(mask)[mask]
         self.buffer.start_segment(with_goal(obs, self.goal, self.task.state_dim), mask)
 
@@ -183,13 +197,14 @@ class GoalConditioned(Algorithm):
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
         no = with_goal(next_obs, self.goal, self.task.state_dim)
-        terminal = np.asarray(self.task.is_success(no), dtype=bool)
+        success = np.asarray(self.task.is_success(no), dtype=bool)
+        terminal = success if self.success_ends_phase() else np.zeros_like(success)
         self.phase_steps += 1
         limit = self.phase_steps >= self.cfg.phase_step_limit
         truncated = ~terminal & (limit | self._switch | hard_reset)
         end = terminal | truncated
         with self.timers("buffer"):
-            self.buffer.add(self._action, terminal.astype(np.float32), no, terminal, truncated)
+            self.buffer.add(self._action, success.astype(np.float32), no, terminal, truncated)
             self.stored(self._obs, no, end)
         if self.step >= self.cfg.seed_steps:
             with self.timers("buffer"):

@@ -1,34 +1,38 @@
-"""VaPRL: value-accelerated persistent RL (Sharma et al., NeurIPS 2021), ALGORITHMS.md 8.
+"""VaPRL: value-accelerated persistent RL (Sharma et al., NeurIPS 2021), docs/algorithms.md "VaPRL".
 
-One goal-conditioned SAC agent and one buffer (forward + backward demos, each with its own goal)
-for both phases, as in RISC's re-implementation (8.1, 8.4 DEFAULT; :mod:`algorithms.goal_conditioned`).
-Forward phases command the task goal g* (uniform over the task goals); backward phases command the
-curriculum subgoal C(g*) for the g* of the NEXT forward phase (8.3). A phase ends on success with
-its own goal (terminal), at ``phase_step_limit`` (200 / 300 / 200) or at a hard reset (-> forward
-phase). SAC as in RISC (14.2): log sigma clamp [-20, 10], 10k uniform warm-up steps, and
-timeout-aware bootstrapping (RISC calls the non-bootstrapping VaPRL variant a bug, 8.4).
+Two registered variants share this file:
 
-Curriculum (8.2), recomputed at the start of every backward phase (DEFAULT): candidates are the
-state halves of the forward demos' observations followed by the backward demos' (final
-next-states excluded); their distance to rho0 is the time index inside their demo (forward: steps
-since the demo start; backward: steps remaining to the demo end, computed cleanly per demo, 8.1).
-V(c, g*) = mean over 5 policy actions of min(Q1, Q2) of a separate value critic trained on the
-SAC batches without entropy, each head bootstrapping from its own target (8.1). C(g*) = the
-feasible candidate (V >= eps) nearest to rho0; if none is feasible, the candidate with the largest
-V (DEFAULT). eps = kappa * V_max, V_max = reward_scale = 10 (sparse reward 1 at a terminal
-success); kappa per env in suites/algorithms/vaprl.yaml, DEFAULT 0.5 everywhere (NOT FOUND).
+- ``vaprl`` -- the method as published: the behaviour of the ORIGINAL VaPRL code (google-research
+  ``reset_free_learning/reset_free.py``, TF-Agents, the code behind the EARL curves), wherever that code fixes it:
+  plain 256-256 MLPs without the LayerNorm trunk, no bootstrapping across a phase end or hard reset (TF-Agents ends
+  the episode there: discount 0), fixed-length phases in which reaching the goal earns reward but does not end the
+  phase (the code's default ``ResetFreeWrapper``), hindsight relabelling of each finished phase with its final
+  achieved state (``goal_relabel_type`` 0), subgoals chosen by the Lagrangian rule
+  ``argmin_c ||c - mean(rho0)|| - lambda * V(c, g*)`` with lambda starting at 0 and raised by a dual Adam step
+  whenever the chosen subgoals' value is below the threshold, V from the SAC critic itself (min over its two heads,
+  mean over policy actions, ``use_minimum``: min(V(s_now -> c), V(c -> g*))).
+- ``vaprl_risc`` -- RISC's re-implementation (Patil et al. 2024, ``gc_vaprl_sac``): LayerNorm trunk, timeout-aware
+  bootstrapping, phases that end on success, 4 relabelled goals per transition (future states and demo states), a
+  separate no-entropy value critic and the "nearest feasible demo state by time index" rule. It learns much faster
+  than the published VaPRL curve (docs/reproduction.md, the VaPRL ablation).
 
-Relabelling (8.3, DEFAULT): every online transition gets ``n_sampled_goals`` = 4 relabelled
-copies, goals 50% future next-states of the same phase (own next state included) and 50% demo
-candidate states; reward and terminal recomputed with ``task.is_success([s', g_new])``. The
-copies are inserted when the phase ends (the future states are known only then), each as a
-one-transition segment closed by ``truncated`` unless terminal (so it bootstraps under TAB).
-Demo transitions are not relabelled. The buffer holds 1 + 2 * 4 steps per env step, hence the
-large ``buffer_capacity`` bound (storage grows on demand).
+Settings the original code leaves to per-experiment flags that were not published (DEFAULT, documented in
+docs/algorithms.md): phase length 200 / 300 / 200 (RISC's values; the code's flag default is 400), the value threshold
+``kappa * v_max`` with kappa 0.5, the multiplier's learning rate 3e-4 (flag default) and no upper bound (flag
+default), one policy action per value estimate (flag default ``num_action_samples`` 1).
+
+Every config switch below selects one behaviour of one of the two codes, so an ablation restores one of them at a time.
+
+Shared: ONE goal-conditioned SAC agent and ONE buffer holding the forward and backward demos
+(:mod:`algorithms.goal_conditioned`); forward phases command a task goal g* (uniform); backward phases command the
+curriculum subgoal C(g*) for the g* of the NEXT forward phase; a hard reset starts a forward phase; candidates are
+the state halves of the forward then backward demos' observations (final next-states excluded), recomputed at the
+start of every backward phase.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,20 +41,55 @@ import torch
 
 from algorithms.api import DemoSet, Task, demo_segments
 from algorithms.common import load_rng_states, member_rngs, rng_states
-from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned
+from algorithms.core.nets import generator_states, load_generator_states, member_generators
+from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned, policy_value
 
-VALUE_STREAM, RELABEL_STREAM = 40, 43  # AuxCritic uses stream .. stream + 2
+VALUE_STREAM, RELABEL_STREAM, SAC_VALUE_STREAM = 40, 43, 44  # AuxCritic uses stream .. stream + 2
+RELABEL = ("final", "final_failed", "future_demo", "none")
+CURRICULUM = ("lagrangian", "nearest_feasible")
+VALUE_CRITIC = ("sac", "separate")
+ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # TF1 AdamOptimizer defaults (the multiplier's optimizer)
 
 
 @dataclass
 class VaPRLConfig(GCConfig):
-    """Defaults: 8.1-8.3 (phase limit of tabletop; per-env values in suites/algorithms/vaprl.yaml)."""
+    """``vaprl``: the original code's behaviour (module docstring); per-env values in suites/algorithms/vaprl.yaml."""
 
-    kappa: float = 0.5  # eps = kappa * V_max (DEFAULT, per-env values NOT FOUND)
-    v_max: float = 10.0  # reward_scale * max reward, with termination at success
-    n_sampled_goals: int = 4
-    future_fraction: float = 0.5  # relabelled goals from future states of the phase; the rest demo states
+    use_trunk: bool = False  # TF-Agents ActorDistributionNetwork / CriticNetwork: plain 256-256 MLPs
+    bootstrap_on_truncation: bool = False  # phase end = TF-Agents termination (discount 0)
+    success_ends_phase: bool = False  # ResetFreeWrapper: success earns reward, the phase runs to its limit
+    relabel: str = "final"  # final | final_failed | future_demo | none
+    n_sampled_goals: int = 4  # future_demo: relabelled copies per transition
+    future_fraction: float = 0.5  # future_demo: share of goals from future states of the phase (the rest demo states)
+    curriculum: str = "lagrangian"  # lagrangian | nearest_feasible
+    value_critic: str = "sac"  # sac (the SAC critic, entropy included) | separate (a no-entropy critic)
+    value_actions: int = 1  # policy actions per value estimate (num_action_samples)
+    use_minimum: bool = True  # V = min(V(s_now -> c), V(c -> g*))
+    kappa: float = 0.5  # value threshold = kappa * v_max (per-env values NOT FOUND)
+    v_max: float = 10.0  # reward_scale * sparse reward
+    lagrange_lr: float = 3e-4  # Adam on the multiplier, one step per phase_step_limit env steps
+    lagrange_max: float = math.inf  # upper clip of the multiplier
     buffer_capacity: int = 100_000_000
+
+    def validate(self) -> None:
+        super().validate()
+        for key, allowed in (("relabel", RELABEL), ("curriculum", CURRICULUM), ("value_critic", VALUE_CRITIC)):
+            if getattr(self, key) not in allowed:
+                raise ValueError(f"{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}")
+
+
+@dataclass
+class VaPRLRISCConfig(VaPRLConfig):
+    """``vaprl_risc``: RISC's re-implementation (gc_vaprl_sac); per-env values in suites/algorithms/vaprl_risc.yaml."""
+
+    use_trunk: bool = True
+    bootstrap_on_truncation: bool = True
+    success_ends_phase: bool = True
+    relabel: str = "future_demo"
+    curriculum: str = "nearest_feasible"
+    value_critic: str = "separate"
+    value_actions: int = 5
+    use_minimum: bool = False
 
 
 def demo_time_index(terminals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +99,8 @@ def demo_time_index(terminals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def subgoal_candidates(forward, reverse, state_dim: int) -> tuple[np.ndarray, np.ndarray]:
-    """Candidate states (N, state_dim), forward demos first, and their distance to rho0 (N,) (8.1)."""
+    """Candidate states (N, state_dim), forward demos first, and their time-index distance to rho0 (N,): steps since
+    the forward demo's start, steps left to the backward demo's end (RISC's ``timestep`` distance)."""
     pos_f, _ = demo_time_index(forward.terminals)
     pos_b, len_b = demo_time_index(reverse.terminals)
     states = np.concatenate([forward.observations[:, :state_dim], reverse.observations[:, :state_dim]])
@@ -68,26 +108,96 @@ def subgoal_candidates(forward, reverse, state_dim: int) -> tuple[np.ndarray, np
 
 
 def choose_subgoal(values: np.ndarray, distance: np.ndarray, eps: float) -> int:
-    """Index of the feasible (value >= eps) candidate with the smallest distance; if none, the largest value."""
+    """``nearest_feasible``: the feasible (value >= eps) candidate with the smallest distance; if none, the largest
+    value."""
     feasible = values >= eps
     if not feasible.any():
         return int(np.argmax(values))
     return int(np.argmin(np.where(feasible, distance, np.iinfo(np.int64).max)))
 
 
+def lagrangian_subgoal(values: np.ndarray, distance: np.ndarray, lam: float) -> int:
+    """``lagrangian``: argmin over candidates of distance - lambda * value (ties: the first)."""
+    return int(np.argmin(distance - lam * values))
+
+
+def final_state_relabel(phase: np.ndarray, state_dim: int, act_dim: int, is_success) -> dict[str, np.ndarray]:
+    """One hindsight copy of a phase's rows [s, a, s'] (T, .) with goal = its final achieved state s'_T, cut at the
+    first transition that succeeds for that goal (terminal there), as the original ``relabel_function`` does."""
+    s, a, s2 = phase[:, :state_dim], phase[:, state_dim : state_dim + act_dim], phase[:, state_dim + act_dim :]
+    goal = np.broadcast_to(s2[-1], s.shape)
+    next_obs = np.concatenate([s2, goal], axis=1).astype(np.float32)
+    success = np.asarray(is_success(next_obs), dtype=bool)
+    end = int(np.argmax(success)) + 1 if success.any() else len(phase)
+    terminal = success[:end].copy()
+    return {"observations": np.concatenate([s, goal], axis=1)[:end].astype(np.float32), "actions": a[:end],
+            "rewards": success[:end].astype(np.float32), "next_observations": next_obs[:end], "terminals": terminal}
+
+
+class LagrangeMultiplier:
+    """One scalar per member, >= 0, minimised by Adam on mean(lambda * (V_chosen - threshold)) over the subgoals chosen
+    since the last step: it grows while chosen subgoals are below the threshold (subgoals move toward the goal) and
+    shrinks otherwise (toward rho0)."""
+
+    def __init__(self, num_members: int, lr: float, upper: float):
+        self.lr, self.upper = lr, upper
+        self.value = np.zeros(num_members)
+        self.m, self.v = np.zeros(num_members), np.zeros(num_members)
+        self.t = np.zeros(num_members, dtype=np.int64)
+        self.pending: list[list[float]] = [[] for _ in range(num_members)]
+
+    def record(self, i: int, value: float) -> None:
+        self.pending[i].append(float(value))
+
+    def step(self, threshold: float) -> None:
+        (b1, b2) = ADAM_BETAS
+        for i, vals in enumerate(self.pending):
+            if not vals:
+                continue
+            g = float(np.mean(vals)) - threshold
+            self.t[i] += 1
+            self.m[i] = b1 * self.m[i] + (1 - b1) * g
+            self.v[i] = b2 * self.v[i] + (1 - b2) * g * g
+            lr_t = self.lr * math.sqrt(1 - b2 ** self.t[i]) / (1 - b1 ** self.t[i])
+            self.value[i] = min(max(self.value[i] - lr_t * self.m[i] / (math.sqrt(self.v[i]) + ADAM_EPS), 0.0),
+                                self.upper)
+            self.pending[i] = []
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"value": self.value.copy(), "m": self.m.copy(), "v": self.v.copy(), "t": self.t.copy(),
+                "pending": [list(p) for p in self.pending]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for k in ("value", "m", "v", "t"):
+            getattr(self, k)[:] = state[k]
+        self.pending = [list(p) for p in state["pending"]]
+
+
 class VaPRL(GoalConditioned):
-    """VaPRL: demo-state subgoal curriculum chosen by value, with HER-style relabelling."""
+    """VaPRL: demo-state subgoal curriculum chosen by value, with hindsight relabelling (module docstring)."""
 
     Config = VaPRLConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: VaPRLConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
-        self.candidates, self.distance = subgoal_candidates(demos.forward, demos.reverse, task.state_dim)
-        self.value = AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, VALUE_STREAM)
+        self.candidates, self.time_distance = subgoal_candidates(demos.forward, demos.reverse, task.state_dim)
+        rho0 = np.asarray(task.initial_states, dtype=np.float32).mean(axis=0)
+        self.l2_distance = np.linalg.norm(self.candidates - rho0, axis=1)
+        self.value = (AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, VALUE_STREAM)
+                      if cfg.value_critic == "separate" else None)
+        self.sac_value_gens = member_generators(seeds, self.device, SAC_VALUE_STREAM)
+        self.lagrange = LagrangeMultiplier(self.E, cfg.lagrange_lr, cfg.lagrange_max)
         self.relabel_rngs = member_rngs(seeds, RELABEL_STREAM)
         self.task_goal = np.zeros_like(self.goal)  # g* of the current / next forward phase
         self.subgoal_index = np.full(self.E, -1)  # last chosen candidate (diagnostic)
         self._phase: list[list[np.ndarray]] = [[] for _ in range(self.E)]  # [s, a, s'] rows of the open phase
+
+    @property
+    def threshold(self) -> float:
+        return self.cfg.kappa * self.cfg.v_max
+
+    def success_ends_phase(self) -> bool:
+        return self.cfg.success_ends_phase
 
     # -- goals ---------------------------------------------------------------------------------------
     def _draw_task_goals(self, mask: np.ndarray) -> None:
@@ -106,31 +216,66 @@ class VaPRL(GoalConditioned):
             self._draw_task_goals(bwd)  # the backward subgoal serves the next forward phase's goal
             values = self.candidate_values(bwd)
             for i in np.flatnonzero(bwd):
-                self.subgoal_index[i] = choose_subgoal(values[i], self.distance, self.cfg.kappa * self.cfg.v_max)
-                out[i] = self.candidates[self.subgoal_index[i]]
+                if self.cfg.curriculum == "lagrangian":
+                    k = lagrangian_subgoal(values[i], self.l2_distance, self.lagrange.value[i])
+                    self.lagrange.record(i, values[i, k])
+                else:
+                    k = choose_subgoal(values[i], self.time_distance, self.threshold)
+                self.subgoal_index[i] = k
+                out[i] = self.candidates[k]
         return out
 
+    def _values(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """V(o) for obs (E, N, O): the configured critic, mean over ``value_actions`` policy actions of min_j Q_j."""
+        obs_t = torch.as_tensor(obs, device=self.device)
+        if self.value is not None:
+            v = self.value.policy_value(self.sac.actor, obs_t, mask, self.cfg.value_actions)
+        else:
+            v = policy_value(self.sac.critic, self.sac.actor, obs_t, self.sac_value_gens, self.task.act_dim, mask,
+                             self.cfg.value_actions)
+        return v.cpu().numpy()
+
     def candidate_values(self, mask: np.ndarray) -> np.ndarray:
-        """V(c, g*) for every candidate c and each member's task goal: (E, N)."""
-        sd = self.task.state_dim
-        obs = np.empty((self.E, len(self.candidates), self.task.obs_dim), dtype=np.float32)
+        """V(c, g*) for every candidate c and each member's task goal: (E, N); with ``use_minimum`` the min with
+        V(s_now, c), the value of reaching c from the state the backward phase starts in."""
+        sd, N = self.task.state_dim, len(self.candidates)
+        obs = np.empty((self.E, N, self.task.obs_dim), dtype=np.float32)
         obs[:, :, :sd] = self.candidates
         obs[:, :, sd:] = self.task_goal[:, None]
-        obs_t = torch.as_tensor(obs, device=self.device)
-        return self.value.policy_value(self.sac.actor, obs_t, mask, self.cfg.value_actions).cpu().numpy()
+        values = self._values(obs, mask)
+        if self.cfg.use_minimum:
+            obs[:, :, :sd] = self.phase_obs[:, None, :sd]
+            obs[:, :, sd:] = self.candidates
+            values = np.minimum(values, self._values(obs, mask))
+        return values
+
+    # -- the loop ------------------------------------------------------------------------------------
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        out = super().observe(next_obs, hard_reset)
+        if self.cfg.curriculum == "lagrangian" and self.step % self.cfg.phase_step_limit == 0:
+            self.lagrange.step(self.threshold)
+        return out
 
     # -- relabelling -----------------------------------------------------------------------------------
     def stored(self, obs: np.ndarray, next_obs: np.ndarray, end: np.ndarray) -> None:
+        if self.cfg.relabel == "none":
+            return
         sd = self.task.state_dim
         rows = np.concatenate([obs[:, :sd], self._action, next_obs[:, :sd]], axis=1)
         for i in range(self.E):
             self._phase[i].append(rows[i])
         for i in np.flatnonzero(end):
-            self._insert_relabelled(i, np.stack(self._phase[i]))
+            phase = np.stack(self._phase[i])
             self._phase[i] = []
+            if self.cfg.relabel == "future_demo":
+                self._insert_relabelled(i, phase)
+            elif self.cfg.relabel == "final" or not self.task.is_success(next_obs[i : i + 1])[0]:
+                # final_failed: only phases whose last state misses their own goal (goal_relabel_type 1)
+                copy = final_state_relabel(phase, sd, self.task.act_dim, self.task.is_success)
+                self.buffer.add_demo(**copy, mask=np.arange(self.E) == i)
 
     def relabelled(self, i: int, phase: np.ndarray) -> dict[str, np.ndarray]:
-        """n_sampled_goals copies of every transition of member i's phase rows [s, a, s'] (T, .)."""
+        """``future_demo``: n_sampled_goals copies of every transition of member i's phase rows [s, a, s'] (T, .)."""
         sd, A, k = self.task.state_dim, self.task.act_dim, self.cfg.n_sampled_goals
         s, a, s2 = phase[:, :sd], phase[:, sd : sd + A], phase[:, sd + A :]
         T, rng = len(phase), self.relabel_rngs[i]
@@ -165,6 +310,8 @@ class VaPRL(GoalConditioned):
 
     # -- value critic ------------------------------------------------------------------------------------
     def update_aux(self, batch: dict) -> None:
+        if self.value is None:
+            return
         cfg = self.cfg
         m = self.sac.bootstrap_mask(batch["terminal"], batch["truncated"])
         scaled = cfg.reward_scale * batch["reward"]
@@ -174,17 +321,34 @@ class VaPRL(GoalConditioned):
     def state_dict(self) -> dict[str, Any]:
         width = 2 * self.task.state_dim + self.task.act_dim
         phase = [np.stack(p) if p else np.zeros((0, width), dtype=np.float32) for p in self._phase]
-        return {**super().state_dict(), "value": self.value.state_dict(), "relabel_rngs": rng_states(self.relabel_rngs),
-                "task_goal": self.task_goal.copy(), "subgoal_index": self.subgoal_index.copy(), "phase": phase}
+        state = {**super().state_dict(), "relabel_rngs": rng_states(self.relabel_rngs),
+                 "sac_value_gens": generator_states(self.sac_value_gens), "lagrange": self.lagrange.state_dict(),
+                 "task_goal": self.task_goal.copy(), "subgoal_index": self.subgoal_index.copy(), "phase": phase}
+        if self.value is not None:
+            state["value"] = self.value.state_dict()
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         super().load_state_dict(state)
-        self.value.load_state_dict(state["value"])
+        if self.value is not None:
+            self.value.load_state_dict(state["value"])
         load_rng_states(self.relabel_rngs, state["relabel_rngs"])
+        load_generator_states(self.sac_value_gens, state["sac_value_gens"])
+        self.lagrange.load_state_dict(state["lagrange"])
         self.task_goal[:] = state["task_goal"]
         self.subgoal_index[:] = state["subgoal_index"]
         self._phase = [list(p) for p in state["phase"]]
 
     def metrics(self) -> dict[str, np.ndarray]:
-        d = self.distance[np.maximum(self.subgoal_index, 0)]
-        return {**super().metrics(), "subgoal_distance": np.where(self.subgoal_index >= 0, d, np.nan)}
+        chosen = self.subgoal_index >= 0
+        idx = np.maximum(self.subgoal_index, 0)
+        return {**super().metrics(),
+                "subgoal_time_distance": np.where(chosen, self.time_distance[idx], np.nan),
+                "subgoal_l2_distance": np.where(chosen, self.l2_distance[idx], np.nan),
+                "lagrange_multiplier": self.lagrange.value.copy()}
+
+
+class VaPRLRISC(VaPRL):
+    """RISC's re-implementation of VaPRL (gc_vaprl_sac); see the module docstring."""
+
+    Config = VaPRLRISCConfig

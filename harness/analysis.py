@@ -64,6 +64,8 @@ ALGO_LABELS = {
     "gail_naive": "naive GAIL",
     "gail_oracle": "oracle GAIL",
     "risc": "RISC",
+    "risc_no_tab": "RISC w/o TAB",
+    "vaprl_risc": "VaPRL (RISC's re-implementation)",
 }
 
 #: Table 1 of the MEDAL paper (Sharma, Ahmad, Finn, ICML 2022), as transcribed in

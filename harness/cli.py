@@ -9,7 +9,8 @@
     harness bench env [envs=a,b] [steps=N]
     harness bench train algo=medal env=sawyer_door members=E
     harness bench app [runs=100] [evals=300] [repeats=3] [results=DIR]   dashboard page-load time
-    harness report [suite=NAME] [results=DIR] [out=DIR]
+    harness report [suite=NAME] [results=DIR] [out=DIR] [doc=FILE]
+    harness ship suite=NAME results=DIR [to=results]   copy a suite's evaluation tables (no checkpoints)
 
 Bad input gets one line on stderr naming the problem and exit code 2; nothing is written.
 """
@@ -133,6 +134,18 @@ def cmd_report(args) -> int:
     return report_cli(args.overrides)
 
 
+def cmd_ship(args) -> int:
+    from harness.results import ship
+
+    ov = parse_overrides(args.overrides, {"suite", "results", "to"})
+    if "suite" not in ov or "results" not in ov:
+        raise UsageError("usage: harness ship suite=NAME results=DIR [to=results]")
+    written = ship(ov["results"], ov["suite"], ov.get("to", "results"))
+    runs = len({p.parent for p in written})
+    print(f"{len(written)} files of {runs} run(s) copied to {Path(ov.get('to', 'results')) / ov['suite']}")
+    return 0
+
+
 def cmd_tune(args) -> int:
     from harness.tune import tune_cli
 
@@ -158,6 +171,11 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("report", help="curves (PNG/PDF) and Table 1 (Markdown/LaTeX/CSV) from results")
     rp.add_argument("overrides", nargs="*")
     rp.set_defaults(fn=cmd_report)
+
+    sh = sub.add_parser("ship", help="copy a suite's evaluation tables (evals.parquet, run.yaml, status.json) "
+                                     "to another results directory, without checkpoints")
+    sh.add_argument("overrides", nargs="*")
+    sh.set_defaults(fn=cmd_ship)
 
     d = sub.add_parser("data", help="fetch or generate demonstrations")
     dsub = d.add_subparsers(dest="data_cmd", required=True)

@@ -16,7 +16,7 @@ from algorithms.naive import Naive
 from algorithms.oracle import Oracle
 from algorithms.r3l import R3L
 from algorithms.risc import RISC, RISCNoTAB
-from algorithms.vaprl import VaPRL
+from algorithms.vaprl import VaPRL, VaPRLRISC
 
 ALGORITHMS: dict[str, type[Algorithm]] = {
     "naive": Naive,
@@ -30,6 +30,7 @@ ALGORITHMS: dict[str, type[Algorithm]] = {
     "gail_naive": GAILNaive,
     "gail_oracle": GAILOracle,
     "vaprl": VaPRL,
+    "vaprl_risc": VaPRLRISC,
     "risc": RISC,
     "risc_no_tab": RISCNoTAB,
 }

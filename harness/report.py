@@ -1,4 +1,4 @@
-"""``harness report [suite=NAME] [results=DIR] [out=DIR] [step=last|matched|N] [smooth=K] [published=SRC,...]``
+"""``harness report [suite=NAME] [results=DIR] [out=DIR] [step=last|matched|N] [smooth=K] [published=SRC,...] [doc=FILE]``
 
 Writes to ``out`` (default ``<results>/report/<suite or all>``):
 
@@ -11,7 +11,11 @@ Writes to ``out`` (default ``<results>/report/<suite or all>``):
   beside the MEDAL paper's Table 1 and the difference, best per env in bold
   (``step=last``: each run's last evaluation, the default; ``matched``: the largest step every run
   in the env reached; ``N``: the last evaluation at or before step N);
-- ``aggregates.csv``: IQM and mean across envs with 95% stratified-bootstrap CIs.
+- ``aggregates.csv``: IQM and mean across envs with 95% stratified-bootstrap CIs;
+- for a suite with ``cells`` (``suites/reproduction.yaml``): ``reproduction.png``/``.pdf`` and
+  ``reproduction.md``/``.csv``, the verdict of every check (``harness.reproduction``); ``doc=FILE.md``
+  also rewrites that table between ``<!-- table:SUITE -->`` markers in FILE.md and draws the figure
+  beside it as ``SUITE.png``.
 
 Bad input raises :class:`harness.suites.ConfigError` with one line.
 """
@@ -25,9 +29,9 @@ from pathlib import Path
 import pandas as pd
 
 from harness import analysis as A
-from harness.suites import ConfigError, parse_int
+from harness.suites import ConfigError, load_suite, parse_int
 
-KEYS = {"suite", "results", "out", "step", "smooth", "published", "metric"}
+KEYS = {"suite", "results", "out", "step", "smooth", "published", "metric", "doc"}
 SOURCES = ("risc_paper", "earl_benchmark")
 CURVE_METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions")
 Y_LABELS = {"deployed_success": "Deployed success", "deployed_return": "Deployed return",
@@ -108,6 +112,49 @@ def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: st
     return fig
 
 
+def is_cells_suite(suite: str | None) -> bool:
+    """Whether ``suite`` names a suite file (in suites/ or a path) with ``cells``; results may carry suite names that
+    have no file (tuning studies, fixtures), which are not."""
+    from harness.suites import SUITES_DIR
+
+    if not suite or not ((SUITES_DIR / f"{suite}.yaml").is_file() or Path(suite).is_file()):
+        return False
+    return "cells" in load_suite(suite)[1]
+
+
+def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None = None) -> list[Path]:
+    """For a suite with cells: ``reproduction.png``/``.pdf`` (one panel per cell, our seeds and the published ones,
+    windows shaded, verdicts) and ``reproduction.md``/``.csv`` (the table of checks); with ``doc``, that table also
+    replaces the ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
+    from harness import reproduction as R
+    from harness.data import DataNotFoundError
+    from harness.results import load_published
+
+    ladder = R.load_ladder(suite)
+    try:
+        published = load_published()
+    except (DataNotFoundError, OSError) as e:
+        print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
+        published = None
+    written = []
+    fig = R.plot_ladder(ladder, df, published)
+    for ext in ("png", "pdf"):
+        p = out / f"reproduction.{ext}"
+        fig.savefig(p, dpi=150 if ext == "png" else None, bbox_inches="tight")
+        written.append(p)
+    t = R.ladder_table(ladder, df)
+    (out / "reproduction.md").write_text(R.table_markdown(t))
+    if doc:  # the table into the document, the figure beside it as <suite>.png
+        path = Path(doc)
+        path.write_text(R.replace_doc_table(path.read_text(), suite, R.table_markdown(t)))
+        fig.savefig(path.parent / f"{suite}.png", dpi=110, bbox_inches="tight")
+        written += [path, path.parent / f"{suite}.png"]
+    t.drop(columns=["ours_per_seed", "band"]).assign(
+        ours_per_seed=[" ".join(f"{x:.3f}" for x in v) for v in t["ours_per_seed"]]).to_csv(out / "reproduction.csv",
+                                                                                       index=False)
+    return written + [out / "reproduction.md", out / "reproduction.csv"]
+
+
 def report_cli(overrides: list[str]) -> int:
     from harness.data import DataNotFoundError
     from harness.results import load, load_published
@@ -153,6 +200,15 @@ def report_cli(overrides: list[str]) -> int:
     if not (df["metric"] == "deployed_success").any():
         raise ConfigError(f"no deployed_success rows under {results}" + (f" for suite {suite!r}" if suite else ""))
 
+    if "doc" in ov:  # checked before anything is written
+        from harness.reproduction import replace_doc_table
+
+        if not is_cells_suite(suite):
+            raise ConfigError("doc= rewrites a reproduction suite's table: give a suite with cells")
+        if not Path(ov["doc"]).is_file():
+            raise ConfigError(f"doc= file not found: {ov['doc']}")
+        replace_doc_table(Path(ov["doc"]).read_text(), suite, "")
+
     curves = A.learning_curves(df, metric, window=window)
     pub_curves = None
     if srcs:
@@ -181,6 +237,8 @@ def report_cli(overrides: list[str]) -> int:
     agg = A.aggregate_scores(scores)
     agg.to_csv(out / "aggregates.csv", index=False)
     written.append(out / "aggregates.csv")
+    if is_cells_suite(suite):
+        written += write_reproduction(suite, df, out, ov.get("doc"))
     for p in written:
         print(p)
     return 0

@@ -28,6 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from harness.data import atomic_write_bytes, find_data_dir
+from harness.suites import ConfigError
 
 COLUMNS = ["suite", "env", "algo", "seed", "step", "metric", "value"]
 META_COLUMNS = ["source", "config_hash", "git_sha", "demo_source", "device", "members", "study", "trial"]
@@ -127,3 +128,25 @@ def load_published(data_dir: str | Path | None = None) -> pd.DataFrame:
     df = df.rename(columns={"method": "algo"})
     df["metric"] = df["metric"].replace(PUBLISHED_METRICS)
     return df
+
+
+def ship(source: str | Path, suite: str, dest: str | Path) -> list[Path]:
+    """Copy the evaluation tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``run.yaml``,
+    ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
+    tables a repository can ship so that a fresh clone shows them (docs/reproduction.md)."""
+    src, dst = Path(source).expanduser() / suite, Path(dest).expanduser() / suite
+    if not src.is_dir():
+        raise ConfigError(f"no results of suite {suite!r} under {source}")
+    if src.resolve() == dst.resolve():
+        raise ConfigError(f"source and destination are the same directory: {src}")
+    written = []
+    for evals in sorted(src.rglob(EVALS_FILE)):
+        run = evals.parent
+        if "checkpoints" in run.relative_to(src).parts:
+            continue
+        for name in (EVALS_FILE, RUN_FILE, STATUS_FILE):
+            if (run / name).is_file():
+                target = dst / run.relative_to(src) / name
+                atomic_write_bytes(target, (run / name).read_bytes())
+                written.append(target)
+    return written

@@ -21,6 +21,7 @@ import subprocess
 import sys
 import time
 import traceback
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -90,11 +91,98 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+@dataclass(frozen=True)
+class Unit:
+    """What one (env, method) of a suite asks for; ``name`` is the method's name in results (a cell's variant name,
+    else the algorithm), ``algo_class`` its registry key, ``config`` a cell's own config overrides."""
+
+    env: str
+    name: str
+    algo_class: str
+    steps: int
+    seeds: list[int]
+    members: int
+    config: dict[str, Any]
+
+
+def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
+    from harness.envs import ENVS
+    from harness.registry import ALGORITHMS, PLANNED
+
+    for e in envs:
+        if e not in ENVS:
+            raise ConfigError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+    unknown = [a for a in algos if a not in ALGORITHMS and a not in PLANNED]
+    if unknown:
+        raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
+
+
+def _product_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] | None) -> tuple[list[Unit], list[str]]:
+    """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env."""
+    from harness.registry import ALGORITHMS
+
+    algos = _list(ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
+    envs = _list(ov.get("envs") or ov.get("env") or suite.get("envs") or [])
+    _check_envs_algos(envs, algos)
+    seeds = seeds_ov if seeds_ov is not None else _seeds(suite.get("seeds", 1))
+    members = _int("members", suite.get("members", 1), 1)
+    steps_cfg = ov.get("steps", suite.get("steps", DEFAULT_STEPS))
+    units = []
+    for env in envs:
+        if isinstance(steps_cfg, dict):
+            if env not in steps_cfg:
+                raise ConfigError(f"suite gives no step budget for env {env!r}")
+            steps = _int(f"steps[{env}]", steps_cfg[env], 1)
+        else:
+            steps = _int("steps", steps_cfg, 1)
+        units += [Unit(env, a, a, steps, seeds, members, {}) for a in algos if a in ALGORITHMS]
+    return units, [a for a in algos if a not in ALGORITHMS]
+
+
+CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "checks"}
+
+
+def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] | None) -> tuple[list[Unit], list[str]]:
+    """A suite of ``cells`` (each its own algorithm, env, budget and seeds); ``algo=``/``env=`` select cells (by
+    algorithm or cell name), ``seeds=``/``steps=`` replace every cell's."""
+    cells = suite["cells"]
+    if not isinstance(cells, list) or not cells:
+        raise ConfigError("suite key 'cells' must be a non-empty list of {algo, env, steps, ...} mappings")
+    pick_algos = set(_list(ov.get("algos") or ov.get("algo") or []))
+    pick_envs = set(_list(ov.get("envs") or ov.get("env") or []))
+    units, seen = [], set()
+    for n, c in enumerate(cells):
+        where = f"cell {n + 1} of suite 'cells'"
+        if not isinstance(c, dict) or not {"algo", "env", "steps"} <= set(c):
+            raise ConfigError(f"{where} must be a mapping with at least algo, env and steps")
+        if set(c) - CELL_KEYS:
+            raise ConfigError(f"unknown key(s) {sorted(set(c) - CELL_KEYS)} in {where}; known: {sorted(CELL_KEYS)}")
+        algo, env, name = str(c["algo"]), str(c["env"]), str(c.get("name") or c["algo"])
+        _check_envs_algos([env], [algo])
+        if not name.replace("_", "").isalnum():
+            raise ConfigError(f"{where}: name must be letters, digits and '_', got {name!r}")
+        if (env, name) in seen:
+            raise ConfigError(f"{where}: two cells run {name!r} on {env!r}; give one a distinct name")
+        seen.add((env, name))
+        config = c.get("config") or {}
+        if not isinstance(config, dict):
+            raise ConfigError(f"{where}: config must map keys of {algo!r} to values")
+        if pick_algos and not pick_algos & {algo, name} or pick_envs and env not in pick_envs:
+            continue
+        seeds = seeds_ov if seeds_ov is not None else _seeds(c.get("seeds", suite.get("seeds", 1)))
+        steps = _int(f"steps of {where}", ov.get("steps", c["steps"]), 1)
+        members = _int(f"members of {where}", c.get("members", suite.get("members", len(seeds))), 1)
+        units.append(Unit(env, name, algo, steps, seeds, members, dict(config)))
+    if not units:
+        raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(pick_algos)) or '*'} "
+                          f"env={','.join(sorted(pick_envs)) or '*'}")
+    return units, []
+
+
 def build_plan(words: list[str]) -> Plan:
     """Validate the overrides and resolve them into run groups (nothing is written)."""
     from harness.data import load_demos
-    from harness.envs import ENVS
-    from harness.registry import ALGORITHMS, PLANNED
+    from harness.registry import ALGORITHMS
 
     ov: dict[str, str] = {}
     algo_ov: dict[str, dict[str, str]] = {}
@@ -119,19 +207,8 @@ def build_plan(words: list[str]) -> Plan:
             raise ConfigError("give suite=NAME, or algo=... and env=... for an ad-hoc run")
         suite_name, suite = "adhoc", {}
 
-    algos = _list(ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
-    envs = _list(ov.get("envs") or ov.get("env") or suite.get("envs") or [])
-    for e in envs:
-        if e not in ENVS:
-            raise ConfigError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
-    unknown = [a for a in algos if a not in ALGORITHMS and a not in PLANNED]
-    if unknown:
-        raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
-    plan = Plan(suite_name, unregistered=[a for a in algos if a not in ALGORITHMS])
-    algos = [a for a in algos if a in ALGORITHMS]
-
-    seeds = _seeds(ov.get("seeds", suite.get("seeds", 1)))
-    members = _int("members", ov.get("members", 1), 1)
+    seeds_ov = _seeds(ov["seeds"]) if "seeds" in ov else None
+    members_ov = _int("members", ov["members"], 1) if "members" in ov else None
     eval_every = _int("eval_every", ov.get("eval_every", suite.get("eval_every", 10_000)), 1)
     eval_episodes = _int("eval_episodes", ov.get("eval_episodes", suite.get("eval_episodes", 10)), 1)
     ckpt = _int("checkpoint_every", ov.get("checkpoint_every", suite.get("checkpoint_every", 50_000)), 1)
@@ -147,35 +224,37 @@ def build_plan(words: list[str]) -> Plan:
     if not (backend == "ray" and ov.get("ray_address")):
         device = _device(device)
     results = ov.get("results", "results")
-    steps_cfg = ov.get("steps", suite.get("steps", DEFAULT_STEPS))
     suite_cfg = suite.get("config") or {}
     if not isinstance(suite_cfg, dict):
         raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
 
-    check_all_keys([ALGORITHMS[a].Config for a in algos], suite_cfg, algo_ov)
-    for env in envs:
-        if isinstance(steps_cfg, dict):
-            if env not in steps_cfg:
-                raise ConfigError(f"suite gives no step budget for env {env!r}")
-            steps = _int(f"steps[{env}]", steps_cfg[env], 1)
-        else:
-            steps = _int("steps", steps_cfg, 1)
-        fwd = load_demos(env, "forward")  # fails early, with one line, if the data is missing
-        for algo in algos:
-            cls = ALGORITHMS[algo]
-            cfg = resolve_algo_config(cls.Config, algo, env, suite_cfg, algo_ov)
-            cfg_plain = as_plain(cfg)
-            protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
-            h = config_hash({"env": env, "algo": algo, "config": cfg_plain, "protocol": protocol, "demos": fwd.source})
-            for i in range(0, len(seeds), members):
-                plan.groups.append(
-                    {
-                        "suite": suite_name, "env": env, "algo": algo, "seeds": seeds[i : i + members],
-                        "steps": steps, "eval_every": eval_every, "eval_episodes": eval_episodes,
-                        "checkpoint_every": ckpt, "device": device, "results": results,
-                        "config": cfg_plain, "config_hash": h, "demo_source": fwd.source,
-                    }
-                )
+    if "cells" in suite:
+        units, unregistered = _cell_units(suite, ov, seeds_ov)
+    else:
+        units, unregistered = _product_units(suite, ov, seeds_ov)
+    plan = Plan(suite_name, unregistered=unregistered)
+    check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, algo_ov)
+    protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
+    for u in units:
+        fwd = load_demos(u.env, "forward")  # fails early, with one line, if the data is missing
+        cls = ALGORITHMS[u.algo_class]
+        cell_layer = {u.algo_class: u.config} if u.config else {}
+        cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, algo_ov)
+        cfg_plain = as_plain(cfg)
+        ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
+        if u.name != u.algo_class:
+            ident["algo_class"] = u.algo_class
+        h = config_hash(ident)
+        members = members_ov or u.members
+        for i in range(0, len(u.seeds), members):
+            plan.groups.append(
+                {
+                    "suite": suite_name, "env": u.env, "algo": u.name, "algo_class": u.algo_class,
+                    "seeds": u.seeds[i : i + members], "steps": u.steps, "eval_every": eval_every,
+                    "eval_episodes": eval_episodes, "checkpoint_every": ckpt, "device": device, "results": results,
+                    "config": cfg_plain, "config_hash": h, "demo_source": fwd.source,
+                }
+            )
     workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1)
     plan.workers = min(workers, max(len(plan.groups), 1))
     plan.backend, plan.ray_address = backend, ov.get("ray_address")  # read by harness.backends.run_plan
@@ -183,8 +262,17 @@ def build_plan(words: list[str]) -> Plan:
     return plan
 
 
+def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """True when ``new`` keeps every key of ``old`` with the same value and only adds keys.
+
+    Project rule (docs/extending.md): a config key added to an algorithm defaults to the behaviour the code had
+    before it existed, so a run started before the key was added resumes under the new code unchanged."""
+    return all(k in new and new[k] == v for k, v in old.items())
+
+
 def _check_results_dirs(plan: Plan) -> None:
-    """Refuse to mix runs of a different config into an existing results directory."""
+    """Refuse to mix runs of a different config into an existing results directory (a config that only gained
+    keys, at the defaults that keep the old behaviour, is the same config: see :func:`only_gained_keys`)."""
     from harness.results import RUN_FILE, run_dir
 
     for g in plan.groups:
@@ -192,11 +280,18 @@ def _check_results_dirs(plan: Plan) -> None:
             p = run_dir(Path(g["results"]), g["suite"], g["env"], g["algo"], s) / RUN_FILE
             if p.exists():
                 old = yaml.safe_load(p.read_text()) or {}
-                if old.get("config_hash") != g["config_hash"]:
-                    raise ConfigError(
-                        f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
-                        f"{g['config_hash']}); choose another results= directory or suite name"
-                    )
+                if old.get("config_hash") == g["config_hash"]:
+                    continue
+                same_protocol = all(old.get(k) == g[k] for k in ("eval_every", "eval_episodes", "demo_source"))
+                if same_protocol and isinstance(old.get("config"), dict) and only_gained_keys(old["config"], g["config"]):
+                    gained = sorted(set(g["config"]) - set(old["config"]))
+                    print(f"harness: note: {p.parent}: the config gained key(s) {', '.join(gained)} since this run "
+                          "started; resuming it under the new code", file=sys.stderr)
+                    continue
+                raise ConfigError(
+                    f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
+                    f"{g['config_hash']}); choose another results= directory or suite name"
+                )
 
 
 def run_group(group: dict[str, Any], command: str, queue=None, threads: int | None = None, should_stop=None) -> str | None:
@@ -231,7 +326,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
         }
         for d, s in zip(dirs, group["seeds"]):
             atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
-        cls = ALGORITHMS[group["algo"]]
+        cls = ALGORITHMS[group.get("algo_class", group["algo"])]
         demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
         cfg = cls.Config.from_dict(group["config"])
         algo = cls(get_spec(group["env"]), demos, cfg, group["seeds"], torch.device(group["device"]))

@@ -32,7 +32,8 @@ import yaml
 from algorithms.api import parse_int as _parse_int
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
-SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every", "config"}
+SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every",
+              "config", "members", "cells", "criterion"}
 
 
 class ConfigError(ValueError):
@@ -81,6 +82,9 @@ def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
     unknown = set(d) - SUITE_KEYS
     if unknown:
         raise ConfigError(f"unknown key(s) {sorted(unknown)} in suite {path}; known: {sorted(SUITE_KEYS)}")
+    if "cells" in d and {"algos", "envs", "steps"} & set(d):
+        raise ConfigError(f"suite {path} has 'cells': algorithms, envs and budgets belong in its cells, "
+                          f"not in {sorted({'algos', 'envs', 'steps'} & set(d))}")
     return name, d
 
 

@@ -1,6 +1,8 @@
 """RISC (ALGORITHMS.md 14) and VaPRL (8): switching rule, success-critic target, bootstrap masks, subgoal
 curriculum, relabelled rewards, member independence."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -19,7 +21,18 @@ from algorithms.risc import (
     success_target,
     switch_probability,
 )
-from algorithms.vaprl import VaPRL, VaPRLConfig, choose_subgoal, demo_time_index, subgoal_candidates
+from algorithms.vaprl import (
+    LagrangeMultiplier,
+    VaPRL,
+    VaPRLConfig,
+    VaPRLRISC,
+    VaPRLRISCConfig,
+    choose_subgoal,
+    demo_time_index,
+    final_state_relabel,
+    lagrangian_subgoal,
+    subgoal_candidates,
+)
 from harness.data import load_demos
 from harness.envs import get_spec
 
@@ -167,8 +180,8 @@ def test_candidates_and_time_index():
     assert dist[nf] == ends[0] + 1
 
 
-def test_vaprl_subgoal_from_value_table(monkeypatch):
-    v = _make(VaPRL, VaPRLConfig, kappa=0.5)
+def test_vaprl_risc_subgoal_from_value_table(monkeypatch):
+    v = _make(VaPRLRISC, VaPRLRISCConfig, kappa=0.5)
     N = len(v.candidates)
     table = np.zeros((1, N))
     monkeypatch.setattr(v, "candidate_values", lambda mask: table)
@@ -176,7 +189,7 @@ def test_vaprl_subgoal_from_value_table(monkeypatch):
     v.direction[:] = BACKWARD
     table[0, [30, 700, 1500]] = [6.0, 5.0, 9.0]  # eps = 5: feasible {30, 700, 1500}
     g = v.phase_goals(np.ones(1, bool))[0]
-    want = min((30, 700, 1500), key=lambda i: (v.distance[i], i))
+    want = min((30, 700, 1500), key=lambda i: (v.time_distance[i], i))
     np.testing.assert_array_equal(g, v.candidates[want])
     table[:] = 0.0
     table[0, 42] = 4.9  # nothing reaches eps: the largest value
@@ -187,8 +200,8 @@ def test_vaprl_subgoal_from_value_table(monkeypatch):
     assert vals.shape == (1, N) and np.isfinite(vals).all()
 
 
-def test_relabelled_rewards_match_env_predicate():
-    v = _make(VaPRL, VaPRLConfig, seed_steps=10**6, phase_step_limit=40)
+def test_vaprl_risc_relabelled_rewards_match_env_predicate():
+    v = _make(VaPRLRISC, VaPRLRISCConfig, seed_steps=10**6, phase_step_limit=40)
     spec = v.task
     n0 = v.buffer.size[0]
     _run(v, ENV, (0,), 40)  # exactly one phase
@@ -209,15 +222,94 @@ def test_relabelled_rewards_match_env_predicate():
     assert 0.3 < demo_goal.mean() < 0.7
 
 
+def test_final_state_relabel_cuts_at_first_success():
+    """One hindsight copy with goal = the phase's final state, ending at the first transition within the task's
+    success radius of it (the original relabel_function), terminal only there."""
+    spec = get_spec(ENV)
+    s = np.zeros((6, 6), np.float32)
+    s[:, 0] = [0.0, 1.0, 2.0, 2.9, 3.05, 3.1]  # gripper x
+    s2 = np.vstack([s[1:], [[3.2, 0, 0, 0, 0, 0]]]).astype(np.float32)  # s' of the last row: 3.2
+    a = np.arange(18, dtype=np.float32).reshape(6, 3)
+    copy = final_state_relabel(np.concatenate([s, a, s2], axis=1), 6, 3, spec.is_success)
+    # next states x: 1, 2, 2.9, 3.05, 3.1, 3.2; goal x 3.2: the first within 0.2 is 3.05 (the 4th transition)
+    assert len(copy["terminals"]) == 4
+    np.testing.assert_array_equal(copy["terminals"], [False, False, False, True])
+    np.testing.assert_array_equal(copy["rewards"], [0, 0, 0, 1])
+    np.testing.assert_array_equal(copy["observations"][:, 6:], np.broadcast_to(s2[-1], (4, 6)))
+    np.testing.assert_array_equal(copy["next_observations"][:, :6], s2[:4])
+    np.testing.assert_array_equal(copy["actions"], a[:4])
+
+
+def test_lagrangian_rule_and_multiplier():
+    values, dist = np.array([1.0, 5.0, 9.0]), np.array([0.0, 2.0, 4.0])
+    assert lagrangian_subgoal(values, dist, 0.0) == 0  # lambda 0: the candidate nearest rho0
+    assert lagrangian_subgoal(values, dist, 0.6) == 2  # 0-0.6, 2-3, 4-5.4: the valued one wins
+    lam = LagrangeMultiplier(2, lr=0.01, upper=0.05)
+    for _ in range(10):
+        lam.record(0, 1.0)  # below the threshold 5: lambda grows, by ~lr per step (Adam), up to the clip
+        lam.record(1, 9.0)  # above: lambda stays at its floor 0
+        lam.step(threshold=5.0)
+    np.testing.assert_allclose(lam.value, [0.05, 0.0])
+    lam2 = LagrangeMultiplier(1, lr=0.01, upper=math.inf)
+    lam2.record(0, 1.0)
+    lam2.step(5.0)
+    np.testing.assert_allclose(lam2.value, [0.01], rtol=1e-6)
+    lam2.step(5.0)  # nothing recorded since: no step
+    assert lam2.t[0] == 1
+
+
+def test_vaprl_uses_the_original_codes_behaviour():
+    """vaprl: no trunk, phase ends never bootstrapped, success does not end a phase, a final-state hindsight copy per
+    phase, subgoals by the Lagrangian rule with V = min(V(s_now -> c), V(c -> g*)) from the SAC critic."""
+    v = _make(VaPRL, VaPRLConfig, seed_steps=10**6, phase_step_limit=25)
+    assert isinstance(v.sac.actor.trunk, torch.nn.Identity) and v.value is None
+    m = v.sac.bootstrap_mask(torch.tensor([[False, False, True]]), torch.tensor([[False, True, False]]))
+    np.testing.assert_array_equal(m.numpy(), [[1.0, 0.0, 0.0]])
+    n0 = int(v.buffer.size[0])
+    _run(v, ENV, (0,), 100)  # 4 phases of 25 steps
+    d = {k: x[0, n0:int(v.buffer.size[0])].numpy() for k, x in v.buffer.data.items()}
+    starts = np.flatnonzero(d["first"])
+    ends = np.append(starts[1:], len(d["first"]))
+    segs = [slice(a + 1, b) for a, b in zip(starts, ends)]
+    copies = [g for g in segs if d["terminal"][g].any()]
+    online = [g for g in segs if not d["terminal"][g].any() and g.stop > g.start]
+    assert len(online) == 4 and len(copies) == 4  # 4 phases and one hindsight copy of each
+    for g in online:  # exactly the limit, closed by truncation, no terminal inside although successes may occur
+        assert g.stop - g.start == 25 and d["truncated"][g][-1] and not d["truncated"][g][:-1].any()
+    for g in copies:  # each copy ends with its first success on its own goal (the phase's final state)
+        assert d["terminal"][g][-1] and not d["terminal"][g][:-1].any() and d["reward"][g][-1] == 1.0
+        assert get_spec(ENV).is_success(d["obs"][g][-1:])[0]
+    # the curriculum: lambda 0 picks the candidate nearest rho0; use_minimum takes the smaller value
+    seen = []
+    v._values = lambda obs, mask: (seen.append(obs.copy()), np.full(obs.shape[:2], float(len(seen))))[1]
+    vals = v.candidate_values(np.ones(1, bool))
+    np.testing.assert_array_equal(vals, 1.0)  # min(1, 2)
+    np.testing.assert_array_equal(seen[1][0, :, 6:], v.candidates)  # second pass: goal = candidate
+    np.testing.assert_array_equal(seen[1][0, :, :6], np.broadcast_to(v.phase_obs[0, :6], v.candidates.shape))
+    v.direction[:] = BACKWARD
+    g = v.phase_goals(np.ones(1, bool))[0]
+    np.testing.assert_array_equal(g, v.candidates[np.argmin(v.l2_distance)])
+
+
+def test_vaprl_config_rejects_unknown_choices():
+    from harness.runner import build_plan
+    from harness.suites import ConfigError
+
+    with pytest.raises(ConfigError, match="relabel must be one of final, final_failed, future_demo, none"):
+        build_plan(["algo=vaprl", f"env={ENV}", "vaprl.relabel=banana", "results=/nonexistent/x"])
+
+
 # -- both ---------------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("which", ["risc", "vaprl"])
+@pytest.mark.parametrize("which", ["risc", "vaprl", "vaprl_risc"])
 def test_members_are_independent(which):
     """E = 2 gives each member what an E = 1 run with its seed gives: bitwise during the warm-up (host-drawn
     uniform actions), to float rounding afterwards (the core's batched forward differs from E = 1 by ~1 ulp)."""
     if which == "risc":
         mk = lambda seeds: _make(RISC, RISCConfig, seeds, phase_step_limit=40, minimum_steps=5, seed_steps=60)
-    else:
+    elif which == "vaprl":
         mk = lambda seeds: _make(VaPRL, VaPRLConfig, seeds, phase_step_limit=30, seed_steps=60)
+    else:
+        mk = lambda seeds: _make(VaPRLRISC, VaPRLRISCConfig, seeds, phase_step_limit=30, seed_steps=60)
     seeds, steps = (3, 8), 200
     batched = mk(seeds)
     acts = _run(batched, ENV, seeds, steps)

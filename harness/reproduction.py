@@ -1,0 +1,254 @@
+"""The reproduction check: do our runs learn as published? (docs/reproduction.md)
+
+A suite with ``cells`` (``suites/reproduction.yaml``) lists, per cell, a method, an env, a budget, seeds and
+``checks``: a window of evaluations ``(lo, hi]`` and the published per-seed window means of that method (mean, min,
+max over the published seeds). The suite's ``criterion: {widen: w}`` is one rule for every check:
+
+    pass  when  min - w  <=  mean over our seeds of (each seed's mean deployed success in the window)  <=  max + w
+
+A check is ``running`` until every seed of the cell has all its evaluations in the window. Everything here is pure
+(DataFrames in, DataFrames out); :func:`load_ladder` reads the suite file.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from harness.suites import ConfigError, load_suite
+
+METRIC = "deployed_success"
+
+
+@dataclass(frozen=True)
+class Check:
+    lo: int
+    hi: int
+    source: str
+    algo: str  # the published method compared with
+    mean: float
+    min: float
+    max: float
+
+
+@dataclass(frozen=True)
+class Cell:
+    name: str  # the method's name in our results (a variant's name, else the algorithm)
+    algo: str  # registry key
+    env: str
+    steps: int
+    seeds: tuple[int, ...]
+    checks: tuple[Check, ...]
+    config: tuple[tuple[str, object], ...] = ()  # a variant's config overrides, (key, value) pairs
+
+
+@dataclass(frozen=True)
+class Ladder:
+    suite: str
+    cells: tuple[Cell, ...]
+    widen: float
+
+
+def _seed_list(v) -> tuple[int, ...]:
+    if isinstance(v, (list, tuple)):
+        return tuple(int(x) for x in v)
+    return tuple(range(int(v)))
+
+
+def load_ladder(suite: str) -> Ladder:
+    """The cells and checks of a suite with ``cells`` (a name in ``suites/`` or a path)."""
+    name, d = load_suite(suite)
+    if "cells" not in d:
+        raise ConfigError(f"suite {name!r} has no 'cells': it is not a reproduction suite")
+    crit = d.get("criterion") or {}
+    if not isinstance(crit, dict) or set(crit) - {"widen"}:
+        raise ConfigError(f"suite {name!r}: criterion must be {{widen: <number>}}")
+    cells = []
+    for n, c in enumerate(d["cells"]):
+        checks = []
+        for k in c.get("checks") or []:
+            try:
+                lo, hi = (int(x) for x in k["window"])
+                p = k["published"]
+                checks.append(Check(lo, hi, str(p["source"]), str(p.get("algo", c["algo"])), float(p["mean"]),
+                                    float(p["min"]), float(p["max"])))
+            except (KeyError, TypeError, ValueError) as e:
+                raise ConfigError(f"suite {name!r}, cell {n + 1}: a check needs window: [lo, hi] and published: "
+                                  f"{{source, mean, min, max}} ({type(e).__name__}: {e})") from None
+            if not 0 <= lo < hi <= int(c["steps"]):
+                raise ConfigError(f"suite {name!r}, cell {n + 1}: window {lo}-{hi} is not inside the budget {c['steps']}")
+        cells.append(Cell(str(c.get("name") or c["algo"]), str(c["algo"]), str(c["env"]), int(c["steps"]),
+                          _seed_list(c.get("seeds", d.get("seeds", 1))), tuple(checks),
+                          tuple(sorted((c.get("config") or {}).items()))))
+    return Ladder(name, tuple(cells), float(crit.get("widen", 0.1)))
+
+
+def window_means(curves: pd.DataFrame, lo: int, hi: int) -> pd.Series:
+    """Mean of ``value`` over evaluations lo < step <= hi, per seed (seeds with no evaluation there are absent)."""
+    w = curves[(curves["step"] > lo) & (curves["step"] <= hi)]
+    return w.groupby("seed")["value"].mean()
+
+
+def published_curves(published: pd.DataFrame, check: Check, env: str) -> pd.DataFrame:
+    """The published per-seed deployed-success curves a check compares with: seed, step, value."""
+    p = published[(published["source"] == check.source) & (published["env"] == env)
+                  & (published["algo"] == check.algo) & (published["metric"] == METRIC)]
+    return p[["seed", "step", "value"]]
+
+
+def our_curves(ours: pd.DataFrame, suite: str, cell: Cell) -> pd.DataFrame:
+    """Our per-seed deployed-success curves of a cell: seed, step, value (the cell's seeds only)."""
+    o = ours[(ours["suite"] == suite) & (ours["env"] == cell.env) & (ours["algo"] == cell.name)
+             & (ours["metric"] == METRIC) & ours["seed"].isin(cell.seeds)]
+    return o[["seed", "step", "value"]]
+
+
+def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_every: int = 10_000) -> dict:
+    """The check's outcome from our curves (seed, step, value): ``status`` pass / fail / running, our seed-mean and
+    per-seed window means, the accepted band, and how far the slowest seed got."""
+    need = set(range(check.lo + eval_every, check.hi + 1, eval_every))
+    reached = min((int(curves.loc[curves["seed"] == s, "step"].max()) if (curves["seed"] == s).any() else 0)
+                  for s in cell.seeds)
+    per_seed = window_means(curves, check.lo, check.hi)
+    complete = all(need <= set(curves.loc[curves["seed"] == s, "step"].astype(int)) for s in cell.seeds)
+    lower, upper = check.min - widen, check.max + widen
+    mean = float(per_seed.reindex(list(cell.seeds)).mean()) if len(per_seed) else float("nan")
+    if not complete:
+        status = "running"
+    else:
+        status = "pass" if lower <= mean <= upper else "fail"
+    return {"status": status, "ours": mean, "ours_per_seed": [float(per_seed.get(s, np.nan)) for s in cell.seeds],
+            "lower": lower, "upper": upper, "reached": reached}
+
+
+def verdict_text(v: dict, check: Check, steps: int) -> str:
+    if v["status"] == "running":
+        return f"running: reached {v['reached']:,} of {steps:,} steps" if v["reached"] else "not started"
+    side = "" if v["status"] == "pass" else (" (too weak)" if v["ours"] < v["lower"] else " (too strong)")
+    return f"{v['status']}{side}"
+
+
+def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000) -> pd.DataFrame:
+    """One row per (cell, check): method, env, window, published mean (min-max), ours (per seed), verdict."""
+    rows = []
+    for cell in ladder.cells:
+        curves = our_curves(ours, ladder.suite, cell)
+        for check in cell.checks:
+            v = verdict(curves, cell, check, ladder.widen, eval_every)
+            rows.append({
+                "method": cell.name, "env": cell.env, "budget": cell.steps, "seeds": len(cell.seeds),
+                "config": " ".join(f"{k}={_yaml_value(v)}" for k, v in cell.config),
+                "window": f"{check.lo // 1000}k-{check.hi // 1000}k", "lo": check.lo, "hi": check.hi,
+                "published": check.mean, "published_min": check.min, "published_max": check.max,
+                "ours": v["ours"], "ours_per_seed": v["ours_per_seed"], "band": (v["lower"], v["upper"]),
+                "reached": v["reached"], "status": v["status"], "verdict": verdict_text(v, check, cell.steps),
+            })
+    return pd.DataFrame(rows)
+
+
+def _yaml_value(v) -> str:
+    return str(v).lower() if isinstance(v, bool) else str(v)
+
+
+def table_markdown(t: pd.DataFrame) -> str:
+    """The ladder as a Markdown table (ours per seed, published mean and per-seed range, verdict); a ``config``
+    column when some cell is a variant."""
+    variants = bool(t["config"].str.len().any()) if len(t) else False
+    head = "| method | " + ("config | " if variants else "") + "env | budget | window | published mean (per-seed range) " \
+           "| ours: mean (per seed) | verdict |"
+    lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
+    for r in t.itertuples():
+        seeds = ", ".join("-" if np.isnan(x) else f"{x:.2f}" for x in r.ours_per_seed)
+        ours = "-" if np.isnan(r.ours) else f"{r.ours:.2f}"
+        config = f"{r.config or '-'} | " if variants else ""
+        lines.append(f"| {r.method} | {config}{r.env} | {r.budget / 1e6:g}M | {r.window} | {r.published:.2f} "
+                     f"({r.published_min:.2f}-{r.published_max:.2f}) | {ours} ({seeds}) | {r.verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+def replace_doc_table(text: str, suite: str, table: str) -> str:
+    """``text`` with the block between ``<!-- table:SUITE -->`` and ``<!-- /table:SUITE -->`` replaced by ``table``."""
+    start, end = f"<!-- table:{suite} -->", f"<!-- /table:{suite} -->"
+    if start not in text or end not in text:
+        raise ConfigError(f"the document has no '{start}' ... '{end}' block for the table of suite {suite!r}")
+    a, b = text.index(start) + len(start), text.index(end)
+    return text[:a] + "\n" + table + text[b:]
+
+
+def plot_ladder(ladder: Ladder, ours: pd.DataFrame, published: pd.DataFrame | None, ncols: int = 3):
+    """A matplotlib Figure, one panel per cell: our seeds (thin) and mean (thick), the published seeds (thin, grey)
+    and mean (thick, dashed), each check's window shaded, the verdicts in the title."""
+    import math
+
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    cells = ladder.cells
+    ncols = min(ncols, len(cells))
+    nrows = math.ceil(len(cells) / ncols)
+    with matplotlib.rc_context({"font.size": 8, "axes.titlesize": 8.5, "axes.spines.top": False,
+                                "axes.spines.right": False, "pdf.fonttype": 42}):
+        fig = Figure(figsize=(3.6 * ncols, 2.6 * nrows + 0.4), layout="constrained")
+        axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
+        for ax, cell in zip(axes, cells):
+            draw_cell(ax, ladder, cell, ours, published)
+        for ax in axes[len(cells):]:
+            ax.set_visible(False)
+    return fig
+
+
+def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.DataFrame | None) -> None:
+    scale = 1e6 if cell.steps >= 1e6 else 1e3
+    unit = "M" if scale == 1e6 else "k"
+    ours_c = our_curves(ours, ladder.suite, cell)
+    if published is not None and cell.checks:
+        pub = published_curves(published, cell.checks[0], cell.env)
+        pub = pub[pub["step"] <= cell.steps]
+        for _, g in pub.groupby("seed"):
+            ax.plot(g["step"] / scale, g["value"], color="0.6", lw=0.6, alpha=0.7)
+        m = pub.groupby("step")["value"].mean()
+        if len(m):
+            ax.plot(m.index / scale, m.values, color="0.25", lw=1.8, dashes=(4, 2), label="published (mean)")
+    for _, g in ours_c.groupby("seed"):
+        g = g.sort_values("step")
+        ax.plot(g["step"] / scale, g["value"], color="tab:blue", lw=0.7, alpha=0.6)
+    m = ours_c.groupby("step")["value"].mean()
+    if len(m):
+        ax.plot(m.index / scale, m.values, color="tab:blue", lw=1.8, label="ours (mean)")
+    verdicts = []
+    for check in cell.checks:
+        ax.axvspan(check.lo / scale, check.hi / scale, color="tab:orange", alpha=0.12, lw=0)
+        text = verdict_text(verdict(ours_c, cell, check, ladder.widen), check, cell.steps)
+        verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {text.replace('running: reached', 'at')}")
+    ax.set_xlim(0, cell.steps / scale)
+    ax.set_ylim(-0.03, 1.03)
+    ax.set_xlabel(f"Environment steps ({unit})")
+    ax.set_ylabel("Deployed success")
+    ax.grid(alpha=0.25, lw=0.5)
+    ax.set_title(f"{cell.name} / {cell.env}\n" + "\n".join(verdicts))
+
+
+def pass_probability(per_seed: np.ndarray, lower: float, upper: float, n: int, draws: int = 100_000,
+                     seed: int = 0) -> float:
+    """P(a check passes) for n seeds of a FAITHFUL method: seed window means drawn from a Beta distribution fitted (by
+    moments) to the published per-seed window means ``per_seed``, so seeds may fall outside the published range."""
+    m = np.clip(np.asarray(per_seed, dtype=np.float64), 0.005, 0.995)
+    mu, var = m.mean(), max(m.var(ddof=1), 1e-4)
+    k = max(mu * (1 - mu) / var - 1, 1e-3)
+    x = np.random.default_rng(seed).beta(mu * k, (1 - mu) * k, size=(draws, n)).mean(axis=1)
+    return float(((lower <= x) & (x <= upper)).mean())
+
+
+def operating_characteristics(ladder: Ladder, published: pd.DataFrame, seeds=(2, 3, 5)) -> pd.DataFrame:
+    """Per check: the accepted band and P(pass) of a faithful method with each number of seeds (docs/reproduction.md)."""
+    rows = []
+    for cell in ladder.cells:
+        for check in cell.checks:
+            per_seed = window_means(published_curves(published, check, cell.env), check.lo, check.hi).to_numpy()
+            lower, upper = check.min - ladder.widen, check.max + ladder.widen
+            rows.append({"method": cell.name, "env": cell.env, "window": f"{check.lo // 1000}k-{check.hi // 1000}k",
+                         "lower": lower, "upper": upper,
+                         **{f"p_pass_{n}_seeds": pass_probability(per_seed, lower, upper, n) for n in seeds}})
+    return pd.DataFrame(rows)

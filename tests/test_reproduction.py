@@ -1,0 +1,214 @@
+"""The reproduction ladder (suites/reproduction.yaml, harness/reproduction.py, docs/reproduction.md): the suite's
+published numbers agree with the data, the criterion passes / fails / waits as documented, a suite of cells plans
+its runs (and variants) exactly, and the report and the dashboard tab show verdicts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness import reproduction as R
+from harness.runner import build_plan
+from harness.suites import ConfigError
+from harness.synthetic import write_run
+
+from .conftest import requires_data
+
+SUITES = ("reproduction", "vaprl_ablation")
+
+
+def _curves(values: dict[int, list[float]], start: int = 10_000, every: int = 10_000) -> pd.DataFrame:
+    rows = [{"seed": s, "step": start + i * every, "value": v} for s, vals in values.items() for i, v in enumerate(vals)]
+    return pd.DataFrame(rows)
+
+
+CELL = R.Cell("x", "x", "tabletop_manipulation", 100_000, (0, 1), (R.Check(50_000, 100_000, "src", "x", 0.6, 0.4, 0.8),))
+
+
+def test_criterion_passes_faithful_fails_weak_and_too_strong_waits_for_the_window():
+    check = CELL.checks[0]
+    ten = lambda a, b: [0.0] * 5 + list(np.linspace(a, b, 5))  # noqa: E731 - evals 10k..100k, window = last 5
+    # a seed that collapses (0.2) beside one at the top (0.9): mean 0.55 is inside [0.3, 0.9]
+    v = R.verdict(_curves({0: ten(0.2, 0.2), 1: ten(0.9, 0.9)}), CELL, check, 0.1)
+    assert v["status"] == "pass" and v["ours"] == pytest.approx(0.55) and v["ours_per_seed"] == pytest.approx([0.2, 0.9])
+    assert v["lower"] == pytest.approx(0.3) and v["upper"] == pytest.approx(0.9)
+    weak = R.verdict(_curves({0: ten(0.1, 0.1), 1: ten(0.2, 0.2)}), CELL, check, 0.1)
+    assert weak["status"] == "fail" and R.verdict_text(weak, check, CELL.steps) == "fail (too weak)"
+    strong = R.verdict(_curves({0: ten(1.0, 1.0), 1: ten(0.95, 0.95)}), CELL, check, 0.1)
+    assert strong["status"] == "fail" and R.verdict_text(strong, check, CELL.steps) == "fail (too strong)"
+    # one seed short of the window's last evaluation: running, whatever the values
+    partial = _curves({0: ten(0.6, 0.6), 1: ten(0.6, 0.6)[:-1]})
+    v = R.verdict(partial, CELL, check, 0.1)
+    assert v["status"] == "running" and v["reached"] == 90_000
+    assert R.verdict_text(v, check, CELL.steps) == "running: reached 90,000 of 100,000 steps"
+    assert R.verdict_text(R.verdict(partial.iloc[:0], CELL, check, 0.1), check, CELL.steps) == "not started"
+    # evaluations outside (lo, hi] do not count
+    assert R.window_means(_curves({0: [1.0] * 10}, start=0), 50_000, 100_000).tolist() == [1.0]
+
+
+@requires_data
+@pytest.mark.parametrize("suite", SUITES)
+def test_suite_published_numbers_match_the_published_curves(suite):
+    """Every check's published mean / min / max (2 decimals, for reading) are the per-seed window means of the data."""
+    from harness.results import load_published
+
+    pub = load_published()
+    ladder = R.load_ladder(suite)
+    assert ladder.widen == 0.1
+    n = 0
+    for cell in ladder.cells:
+        for check in cell.checks:
+            p = R.published_curves(pub, check, cell.env)
+            per_seed = R.window_means(p, check.lo, check.hi)
+            assert len(per_seed) == 5 and (p["step"] > check.lo).any()
+            assert (check.mean, check.min, check.max) == pytest.approx(
+                (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
+            n += 1
+    assert n == (10 if suite == "reproduction" else 6)
+
+
+@requires_data
+def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
+    plan = build_plan(["suite=reproduction", f"results={tmp_path}"])
+    got = [(g["env"], g["algo"], g["steps"], tuple(g["seeds"])) for g in plan.groups]
+    assert got[0] == ("tabletop_manipulation", "medal", 1_500_000, (0, 1, 2))  # one group: seeds as members
+    assert ("sawyer_peg", "oracle", 1_000_000, (0, 1)) in got and len(got) == 9
+    assert sum(g["steps"] * len(g["seeds"]) for g in plan.groups) == 17_700_000
+    # selecting cells; a cell's hash is the ad-hoc run's (same env, algo, config, protocol)
+    one = build_plan(["suite=reproduction", "algo=risc", "env=sawyer_door", f"results={tmp_path}"]).groups
+    adhoc = build_plan(["algo=risc", "env=sawyer_door", "seeds=2", f"results={tmp_path}"]).groups
+    assert [(g["algo"], g["steps"]) for g in one] == [("risc", 500_000)]
+    assert one[0]["config_hash"] == adhoc[0]["config_hash"]
+    # variants: a name, the base algorithm's class and config overrides; a command-line override still wins
+    ab = build_plan(["suite=vaprl_ablation", "vaprl_risc.kappa=0.3", f"results={tmp_path}"]).groups
+    by = {g["algo"]: g for g in ab}
+    assert by["vaprl_risc_no_tab"]["algo_class"] == "vaprl_risc"
+    assert by["vaprl_risc_no_tab"]["config"]["bootstrap_on_truncation"] is False
+    assert by["vaprl_risc"]["config"]["bootstrap_on_truncation"] is True
+    assert {g["config"]["kappa"] for g in ab} == {0.3}
+    assert len({g["config_hash"] for g in ab}) == len(ab)
+
+
+@requires_data
+@pytest.mark.parametrize("cells, error", [
+    ("[{algo: medal, env: tabletop_manipulation}]", "at least algo, env and steps"),
+    ("[{algo: medal, env: tabletop_manipulation, steps: 10, colour: red}]", "unknown key(s) ['colour']"),
+    ("[{algo: nope, env: tabletop_manipulation, steps: 10}]", "unknown algorithm(s) ['nope']"),
+    ("[{algo: medal, env: tabletop_manipulation, steps: 10}, {algo: medal, env: tabletop_manipulation, steps: 20}]",
+     "two cells run 'medal' on 'tabletop_manipulation'"),
+    ("[{algo: medal, name: 'a b', env: tabletop_manipulation, steps: 10}]", "name must be letters"),
+    ("[{algo: medal, env: tabletop_manipulation, steps: 10, config: {nope: 1}}]", "unknown config key(s) ['nope']"),
+    ("[]", "non-empty list"),
+])
+def test_bad_cells_are_one_line_errors(tmp_path, cells, error):
+    p = tmp_path / "bad.yaml"
+    p.write_text(f"cells: {cells}\n")
+    with pytest.raises(ConfigError) as e:
+        build_plan([f"suite={p}", f"results={tmp_path / 'r'}"])
+    assert error in str(e.value) and "\n" not in str(e.value)
+    assert not (tmp_path / "r").exists()
+
+
+def test_cells_and_algos_do_not_mix(tmp_path):
+    p = tmp_path / "mixed.yaml"
+    p.write_text("algos: [medal]\ncells: [{algo: medal, env: sawyer_door, steps: 10}]\n")
+    with pytest.raises(ConfigError, match="belong in its cells"):
+        R.load_ladder(str(p))
+
+
+def write_ladder_results(root: Path) -> Path:
+    """Shipped-style results for three reproduction cells: RISC/tabletop at the top (pass), oracle/door at 0 (fail),
+    MEDAL/tabletop started (running)."""
+    status = {"state": "done", "step": 300_000, "total": 300_000, "steps_per_s": 20.0, "eta_s": 0.0, "last_success": 1}
+    for env, algo, steps, seeds, value in (("tabletop_manipulation", "risc", 300_000, (0, 1), 1.0),
+                                           ("sawyer_door", "oracle", 300_000, (0, 1), 0.0),
+                                           ("tabletop_manipulation", "medal", 50_000, (0, 1, 2), 0.0)):
+        for s in seeds:
+            write_run(root, "reproduction", env, algo, s, range(0, steps + 1, 10_000),
+                      lambda step, v=value: {"deployed_success": v if step else 0.0}, status)
+    return root
+
+
+def test_ladder_table_and_report(tmp_path, capsys):
+    from harness.report import report_cli
+
+    root = write_ladder_results(tmp_path / "results")
+    from harness.results import load
+
+    t = R.ladder_table(R.load_ladder("reproduction"), load(root)).set_index(["method", "env", "window"])
+    assert t.loc[("risc", "tabletop_manipulation", "200k-300k"), "status"] == "pass"
+    assert t.loc[("oracle", "sawyer_door", "200k-300k"), "verdict"] == "fail (too weak)"
+    assert t.loc[("medal", "tabletop_manipulation", "1400k-1500k"), "verdict"] == "running: reached 50,000 of 1,500,000 steps"
+    assert t.loc[("fbrl", "tabletop_manipulation", "1400k-1500k"), "verdict"] == "not started"
+    out = tmp_path / "report"
+    try:
+        assert report_cli(["suite=reproduction", f"results={root}", f"out={out}", "published=none"]) == 0
+    except ConfigError as e:  # no published data on this machine: the table still needs none
+        pytest.skip(str(e))
+    md = (out / "reproduction.md").read_text()
+    assert "| risc | tabletop_manipulation | 0.3M | 200k-300k | 0.99 (0.96-1.00) | 1.00 (1.00, 1.00) | pass |" in md
+    assert (out / "reproduction.png").stat().st_size > 10_000
+    csv = pd.read_csv(out / "reproduction.csv")
+    assert list(csv["status"]).count("pass") == 1 and list(csv["status"]).count("fail") == 1
+
+
+def test_reproduction_tab(monkeypatch, tmp_path):
+    pytest.importorskip("streamlit")
+    from tests.test_app import run_app
+
+    root = write_ladder_results(tmp_path / "results")
+    at = run_app(monkeypatch, root, "Reproduction")
+    counts = {m.label: int(m.value) for m in at.metric}
+    assert counts == {"checks": 10, "pass": 1, "fail": 1, "running": 8}
+    table = at.dataframe[0].value
+    assert len(table) == 10 and set(table["verdict"]) >= {"pass", "fail (too weak)", "not started"}
+    assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
+    at.selectbox(key="repro_suite").set_value("vaprl_ablation")
+    at.run()
+    assert not at.exception and len(at.get("vega_lite_chart")) == 6
+    assert set(at.dataframe[0].value["verdict"]) == {"not started"}
+
+
+@requires_data
+def test_criterion_operating_characteristics():
+    """The rule's justification (docs/reproduction.md), as numbers: a faithful method passes every check with 2 seeds
+    with probability >= 0.9; a method that does not learn (window mean 0.1) fails every check; RISC's VaPRL (0.97 over
+    200k-300k) fails the published VaPRL's window."""
+    from harness.results import load_published
+
+    ladder = R.load_ladder("reproduction")
+    oc = R.operating_characteristics(ladder, load_published(), seeds=(2,))
+    assert (oc["p_pass_2_seeds"] >= 0.9).all(), oc
+    assert (oc["lower"] > 0.1).all()
+    vaprl = oc[(oc["method"] == "vaprl") & (oc["env"] == "tabletop_manipulation") & (oc["window"] == "200k-300k")]
+    assert float(vaprl["upper"].iloc[0]) < 0.97
+
+
+def test_ship_copies_tables_not_checkpoints_and_report_rewrites_the_doc_table(tmp_path):
+    from harness.cli import main
+    from harness.results import load
+
+    runs = write_ladder_results(tmp_path / "runs")
+    ckpt = runs / "reproduction" / "sawyer_door" / "oracle" / "checkpoints" / "seeds=0,1" / "checkpoint.pt"
+    ckpt.parent.mkdir(parents=True)
+    ckpt.write_bytes(b"x" * 100)
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={tmp_path / 'repo'}"]) == 0
+    shipped = sorted(p.relative_to(tmp_path / "repo") for p in (tmp_path / "repo").rglob("*") if p.is_file())
+    assert len(shipped) == 7 * 3 and not any("checkpoints" in p.parts for p in shipped)
+    pd.testing.assert_frame_equal(load(tmp_path / "repo"), load(runs))
+    assert main(["ship", "suite=nope", f"results={runs}"]) == 2  # one line, nothing written
+    doc = tmp_path / "doc.md"
+    doc.write_text("intro\n<!-- table:reproduction -->\nold\n<!-- /table:reproduction -->\nend\n")
+    assert main(["report", "suite=reproduction", f"results={runs}", f"out={tmp_path / 'out'}", f"doc={doc}",
+                 "published=none"]) == 0
+    text = doc.read_text()
+    assert text.startswith("intro\n<!-- table:reproduction -->\n| method |") and "old" not in text
+    assert text.endswith("<!-- /table:reproduction -->\nend\n") and "fail (too weak)" in text
+    assert (tmp_path / "reproduction.png").is_file()
+    bad = tmp_path / "nomarkers.md"
+    bad.write_text("no table here\n")
+    assert main(["report", "suite=reproduction", f"results={runs}", f"out={tmp_path / 'out2'}", f"doc={bad}"]) == 2
+    assert not (tmp_path / "out2").exists() and bad.read_text() == "no table here\n"
