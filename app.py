@@ -27,9 +27,9 @@ from harness import analysis as A
 
 if TYPE_CHECKING:
     import altair as alt
-from harness.results import EVALS_FILE, STATUS_FILE, load
+from harness.results import EVALS_FILE, STATUS_FILE, TRAIN_FILE, load, load_train
 
-TABS = ["Runs", "Learning curves", "Table 1", "Aggregates", "Ablations", "Reproduction", "Tuning"]
+TABS = ["Runs", "Learning curves", "Table 1", "Aggregates", "Ablations", "Reproduction", "Diagnostics", "Tuning"]
 SOURCES = ["risc_paper", "earl_benchmark"]
 CURVE_METRICS = {
     "deployed_success": "Deployed success",
@@ -70,7 +70,7 @@ def signature(root: str) -> tuple[int, float]:
     r = Path(root)
     if not r.exists():
         return (0, 0.0)
-    for name in (EVALS_FILE, STATUS_FILE):
+    for name in (EVALS_FILE, STATUS_FILE, TRAIN_FILE):
         for p in r.rglob(name):
             try:
                 latest = max(latest, p.stat().st_mtime)
@@ -569,6 +569,56 @@ def tab_reproduction(root: str, sig: tuple) -> None:
                 st.altair_chart(cell_chart(ladder, cell, ours, pub, verdicts), width="stretch", height=330)
 
 
+@st.cache_resource(show_spinner="Loading training diagnostics…", max_entries=2)
+def load_diagnostics(root: str, sig: tuple) -> pd.DataFrame:
+    """Every ``train.parquet`` under ``root`` (re-read when ``sig`` changes); shared, not to be modified."""
+    df = load_train(root, warn=lambda msg: None)
+    for c in ("suite", "env", "algo", "metric"):
+        df[c] = df[c].astype(str)
+    return df
+
+
+def tab_diagnostics(root: str, sig: tuple, sel: Sel) -> None:
+    df = load_diagnostics(root, sig)
+    if df.empty:
+        st.info("No training diagnostics (`train.parquet`) under this directory: runs write them every `log_every` "
+                "steps (default 1,000) since the harness logs them.")
+        return
+    df = A.select(df, suite=sel.suite, env=list(sel.envs), algo=list(sel.algos)) if len(sel.envs) else df
+    if df.empty:
+        st.info("No training diagnostics for this selection.")
+        return
+    runs = df[["suite", "env", "algo", "seed"]].drop_duplicates().sort_values(["suite", "env", "algo", "seed"])
+    labels = [f"{r.suite} / {r.env} / {r.algo} / seed {r.seed}" for r in runs.itertuples()]
+    c1, c2, c3 = st.columns([3, 2, 1])
+    picked = c1.multiselect("runs", labels, default=labels[: min(4, len(labels))], key="diag_runs")
+    metrics = sorted(df["metric"].unique())
+    default = "forward/critic_loss" if "forward/critic_loss" in metrics else "sac/critic_loss" \
+        if "sac/critic_loss" in metrics else metrics[0]
+    metric = c2.selectbox("metric", metrics, index=metrics.index(default), key="diag_metric",
+                          help="forward/*, backward/*, sac/*: SAC update diagnostics of that agent while it acted; "
+                               "discriminator/*, rnd/*, success_critic/*, value_critic/*: the method's own model; "
+                               "phase/*, episode/*, curriculum/*, switch/*: controller state")
+    window = c3.slider("smoothing", 1, 50, 1, key="diag_smooth")
+    keep = runs.iloc[[labels.index(p) for p in picked]] if picked else runs.iloc[:0]
+    d = df[df["metric"] == metric].merge(keep, on=["suite", "env", "algo", "seed"])
+    if d.empty:
+        st.info(f"`{metric}` was not logged by the selected runs.")
+        return
+    d = d.sort_values("step").assign(run=lambda x: x["env"] + "/" + x["algo"] + " seed " + x["seed"].astype(str))
+    d["value"] = d.groupby("run")["value"].transform(lambda v: v.rolling(window, min_periods=1).mean())
+    import altair as alt
+
+    chart = alt.Chart(d[["run", "step", "value"]]).mark_line(strokeWidth=1.5).encode(
+        x=alt.X("step:Q", title="environment steps", axis=alt.Axis(format="~s")),
+        y=alt.Y("value:Q", title=metric, scale=alt.Scale(zero=False)),
+        color=alt.Color("run:N", legend=alt.Legend(title=None, orient="bottom", labelLimit=400)),
+        tooltip=["run", "step", alt.Tooltip("value:Q", format=".4g")])
+    st.altair_chart(chart, width="stretch", height=420)
+    st.caption(f"Means over each logging period (every `log_every` steps) of what the updates returned; "
+               f"smoothing: trailing mean over {window} period(s).")
+
+
 # ------------------------------------------------------------------------------------------
 # page
 
@@ -630,6 +680,8 @@ def main() -> None:
                 tab_tuning(root)
             elif name == "Reproduction":
                 tab_reproduction(root, sig)
+            elif name == "Diagnostics":
+                tab_diagnostics(root, sig, sel)
             elif not len(df) or not envs or not algos:
                 st.info("No evaluations for this selection yet (see the Runs tab).")
             elif name == "Learning curves":

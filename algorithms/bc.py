@@ -20,7 +20,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import AlgoConfig, Algorithm, DemoSet, Task
+from algorithms.api import AlgoConfig, Algorithm, DemoSet, Task, setting
+from algorithms.common import TrainLog
 from algorithms.core.buffer import StateBuffer
 from algorithms.core.nets import member_generators
 from algorithms.core.optim import MemberAdam
@@ -31,10 +32,10 @@ ACTION_CLIP = 1 - 1e-6
 
 @dataclass
 class BCConfig(AlgoConfig):
-    lr: float = 3e-4
-    batch_size: int = 256
-    grad_steps: int = 20_000  # gradient steps, then the policy is frozen; 0 = no limit
-    loss: str = "mse"  # "mse" on tanh(mu), or "nll" = -log pi(a_demo | o)
+    lr: float = setting(3e-4, "Adam learning rate", gt=0, le=1)
+    batch_size: int = setting(256, "demo transitions per gradient step", ge=1, le=65_536)
+    grad_steps: int = setting(20_000, "gradient steps, then the policy is frozen; 0 = no limit", ge=0, le=10**9)
+    loss: str = setting("mse", "mse on tanh(mu), or nll = -log pi(a_demo | o)", choices=("mse", "nll"))
 
 
 class BC(Algorithm):
@@ -51,6 +52,7 @@ class BC(Algorithm):
         self.data = StateBuffer(self.E, len(pairs), O + A, device, seeds, stream=10, name="demo pairs")
         self.data.extend(pairs)
         self.grad_step = 0
+        self.log = TrainLog(self.E, device)
 
     def loss(self, pairs: torch.Tensor) -> torch.Tensor:
         """Per-member loss (E,) on demo pairs (E, B, O + A)."""
@@ -76,7 +78,7 @@ class BC(Algorithm):
     def act(self, obs: np.ndarray) -> np.ndarray:
         """One gradient step (until ``grad_steps``); the env gets zero actions."""
         if not self.cfg.grad_steps or self.grad_step < self.cfg.grad_steps:
-            self.train_step()
+            self.log.add("bc/", {"loss": self.train_step()})
         return np.zeros((self.E, self.task.act_dim), dtype=np.float32)
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
@@ -86,6 +88,9 @@ class BC(Algorithm):
     def eval_act(self, obs: np.ndarray) -> np.ndarray:
         mean, _ = self.actor(torch.as_tensor(obs, device=self.device).unsqueeze(1))
         return torch.tanh(mean).squeeze(1).cpu().numpy()
+
+    def metrics(self) -> dict[str, np.ndarray]:
+        return self.log.pop()
 
     # -- checkpointing --------------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:

@@ -29,8 +29,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task
-from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.api import Algorithm, DemoSet, Task, setting
+from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.sac import SAC
 
@@ -45,7 +45,7 @@ def demo_arrays(demos) -> dict[str, np.ndarray]:
 
 @dataclass
 class ForwardBackwardConfig(SACAlgoConfig):
-    switch_every: int = 300  # policy_switch_frequency (6.2, 9.3)
+    switch_every: int = setting(300, "phase length in env steps (policy_switch_frequency, 6.2, 9.3)", ge=1, le=10**9)
 
 
 class ForwardBackward(Algorithm):
@@ -74,6 +74,7 @@ class ForwardBackward(Algorithm):
         self.step = 0
         self._action = np.zeros((E, A), dtype=np.float32)
         self.timers = Timers(device)
+        self.log = TrainLog(E, device)
 
     # -- hooks -------------------------------------------------------------------------------------
     def backward_demos(self) -> list[dict[str, np.ndarray]]:
@@ -135,7 +136,7 @@ class ForwardBackward(Algorithm):
             with t("buffer"):
                 batch = self.fwd_buf.sample(cfg.batch_size, mask=fwd)
             with t("update"):
-                self.forward.update(batch, fwd)
+                self.log.add("forward/", self.forward.update(batch, fwd), fwd)
         bwd = bwd & (self.bwd_buf.n_valid > 0)  # a backward buffer may start empty (R3L)
         bwd_batch = None
         if bwd.any():
@@ -143,7 +144,7 @@ class ForwardBackward(Algorithm):
                 bwd_batch = self.bwd_buf.sample(cfg.batch_size, mask=bwd)
             with t("update"):
                 reward = self.backward_reward(bwd_batch, bwd)
-                self.backward.update(bwd_batch, bwd, reward=reward)
+                self.log.add("backward/", self.backward.update(bwd_batch, bwd, reward=reward), bwd)
         self.learn_extra(bwd_batch, bwd)
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
@@ -165,6 +166,8 @@ class ForwardBackward(Algorithm):
             # switches (hard resets are handled by on_reset after the env reset)
             sw = switch & ~hard_reset
             to_bwd, to_fwd = sw & fwd, sw & bwd
+            self.log.add_host("phase/", {"backward": bwd})
+            self.log.add_host("phase/", {"forward_end_success": terminal}, fwd & (switch | hard_reset))
             for i in np.flatnonzero(to_bwd):
                 self.goal[i] = self.next_goal(i, BACKWARD)
             for i in np.flatnonzero(to_fwd):
@@ -204,4 +207,6 @@ class ForwardBackward(Algorithm):
         self.step = state["step"]
 
     def metrics(self) -> dict[str, np.ndarray]:
-        return {"backward_fraction": (self.phase == BACKWARD).astype(np.float64)}
+        """forward/* and backward/*: SAC diagnostics of each controller (while it acted); phase/backward: share of
+        steps in the backward phase; phase/forward_end_success: share of forward phases that ended in success."""
+        return self.log.pop()

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from algorithms.api import DemoSet, Task
+from algorithms.api import DemoSet, Task, setting
 from algorithms.core.buffer import StateBuffer
 from algorithms.core.discriminator import Discriminator
 from algorithms.core.nets import MemberLinear, member_generators, member_randn
@@ -93,9 +93,9 @@ class DACDiscriminator(Discriminator):
 class DACFields:
     """What GAIL adds to (or changes in) the naive / oracle configs."""
 
-    disc_hidden: int = 256
-    disc_lr: float = 3e-4
-    gp_weight: float = 10.0
+    disc_hidden: int = setting(256, "hidden width of the DAC discriminator", ge=1, le=65_536)
+    disc_lr: float = setting(3e-4, "Adam learning rate of the discriminator", gt=0, le=1)
+    gp_weight: float = setting(10.0, "gradient-penalty weight", ge=0, le=1e6)
     end_on_success: bool = False
     bootstrap_on_truncation: bool = True
 
@@ -117,7 +117,7 @@ class DAC:
     def learn_extra(self, batch):
         with self.timers("discriminator"):
             agent = torch.cat([batch["obs"], batch["action"]], -1)
-            self.disc.update(self.expert.sample(agent.shape[1]), agent)
+            self.log.add("discriminator/", self.disc.update(self.expert.sample(agent.shape[1]), agent))
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "disc": self.disc.state_dict(), "expert": self.expert.state_dict()}

@@ -27,8 +27,8 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task
-from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.api import Algorithm, DemoSet, Task, setting
+from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
 from algorithms.core import manual
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.nets import generator_states, host_mask, load_generator_states, member_generators, member_randn
@@ -47,9 +47,10 @@ class GCConfig(SACAlgoConfig):
 
     log_std_max: float = 10.0
     bootstrap_on_truncation: bool = True
-    phase_step_limit: int = 200  # 200 / 300 / 200 (suites/algorithms/<algo>.yaml)
-    random_warmup: bool = True  # uniform actions during seed_steps (RISC min_replay_history)
-    value_actions: int = 5  # num_actions_value_computation
+    phase_step_limit: int = setting(200, "steps after which a phase ends (200 / 300 / 200 per env)", ge=1, le=10**9)
+    random_warmup: bool = setting(True, "uniform actions during seed_steps (RISC min_replay_history)")
+    value_actions: int = setting(5, "policy actions per value estimate (num_actions_value_computation)", ge=1,
+                                 le=1024)
 
 
 @torch.no_grad()
@@ -149,6 +150,7 @@ class GoalConditioned(Algorithm):
         self._switch = np.zeros(E, dtype=bool)
         self.phase_obs = np.zeros((E, O), dtype=np.float32)  # env observation at the start of the newest phase
         self.timers = Timers(device)
+        self.log = TrainLog(E, device)
 
     # -- hooks -------------------------------------------------------------------------------------
     def phase_goals(self, mask: np.ndarray) -> np.ndarray:
@@ -211,7 +213,12 @@ class GoalConditioned(Algorithm):
                 batch = self.buffer.sample(self.cfg.batch_size)
             with self.timers("update"):
                 self.update_aux(batch)
-                self.sac.update(batch)
+                self.log.add("sac/", self.sac.update(batch))
+        fwd = self.direction == FORWARD
+        self.log.add_host("phase/", {"backward": ~fwd})
+        self.log.add_host("phase/", {"forward_end_success": success, "forward_early_switch": self._switch & ~success},
+                          fwd & end)
+        self.log.add_host("phase/", {"backward_end_success": success}, ~fwd & end)
         flip = end & ~hard_reset  # a hard reset starts a forward phase in on_reset
         self.direction[flip] = 1 - self.direction[flip]
         self.phase_steps[end] = 0
@@ -244,4 +251,6 @@ class GoalConditioned(Algorithm):
         self.step = state["step"]
 
     def metrics(self) -> dict[str, np.ndarray]:
-        return {"backward_fraction": (self.direction == BACKWARD).astype(np.float64)}
+        """sac/*: the agent's update diagnostics; phase/*: share of steps in backward phases, and of forward
+        (backward) phases that ended in success, or (RISC) by an early switch."""
+        return self.log.pop()

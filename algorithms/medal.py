@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task, demo_segments
+from algorithms.api import DemoSet, Task, demo_segments, setting
 from algorithms.core.buffer import StateBuffer
 from algorithms.core.discriminator import Discriminator
 from algorithms.forward_backward import BACKWARD, FORWARD, ForwardBackward, ForwardBackwardConfig, demo_arrays
@@ -52,13 +52,15 @@ __all__ = ["BACKWARD", "FORWARD", "MEDAL", "MEDALConfig", "demo_states", "relabe
 class MEDALConfig(ForwardBackwardConfig):
     """MEDAL defaults = the reference code's (ALGORITHMS.md 9.3); switch_every = 300."""
 
-    disc_every: int = 10  # one discriminator step every 10 env steps
-    disc_batch: int = 400  # positives per step (and as many negatives): 800 in all
-    disc_hidden: int = 128
-    disc_lr: float = 3e-4
-    disc_mixup: bool = True
-    reward_form: str = "medal"  # "medal": -log(1 - C + eps); "logc": log(C + eps) (section 10)
-    positives: str = "demos"  # "demos": forward demo states; "rho0": initial states x task goals (section 11)
+    disc_every: int = setting(10, "one discriminator step every this many env steps", ge=1, le=10**9)
+    disc_batch: int = setting(400, "positives per discriminator step (and as many negatives)", ge=1, le=65_536)
+    disc_hidden: int = setting(128, "hidden width of the discriminator", ge=1, le=65_536)
+    disc_lr: float = setting(3e-4, "Adam learning rate of the discriminator", gt=0, le=1)
+    disc_mixup: bool = setting(True, "mixup (Beta(1,1)) of discriminator inputs and labels")
+    reward_form: str = setting("medal", "backward reward: medal = -log(1 - C + eps), logc = log(C + eps)",
+                               choices=("medal", "logc"))
+    positives: str = setting("demos", "discriminator positives: forward demo states, or rho0 (initial states x "
+                                      "task goals, FBRL + VICE)", choices=("demos", "rho0"))
 
 
 def demo_states(demos) -> np.ndarray:
@@ -117,7 +119,7 @@ class MEDAL(ForwardBackward):
             with self.timers("discriminator"):
                 pos = self.pos_buf.sample(cfg.disc_batch, mask=ready)
                 neg = self.neg_buf.sample(cfg.disc_batch, mask=ready)
-                self.disc.update(pos, neg, ready)
+                self.log.add("discriminator/", self.disc.update(pos, neg, ready), ready)
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "disc": self.disc.state_dict(), "pos_buf": self.pos_buf.state_dict(),

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task
-from algorithms.common import SACAlgoConfig, Timers, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.api import Algorithm, DemoSet, Task, setting
+from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.sac import SAC
 from algorithms.forward_backward import demo_arrays
@@ -30,9 +30,9 @@ from algorithms.forward_backward import demo_arrays
 
 @dataclass
 class NaiveConfig(SACAlgoConfig):
-    episode_steps: int = 300  # pseudo-episode length; 0 = the env's eval horizon H_E
-    end_on_success: bool = True  # success ends the (pseudo-)episode, stored terminal
-    random_seed_actions: bool = False  # uniform actions in [-1, 1] during the seed phase (oracle.py of [MC])
+    episode_steps: int = setting(300, "pseudo-episode length; 0 = the env's eval horizon H_E", ge=0, le=10**9)
+    end_on_success: bool = setting(True, "success ends the (pseudo-)episode, stored terminal")
+    random_seed_actions: bool = setting(False, "uniform actions in [-1, 1] during the seed phase (oracle.py of [MC])")
 
 
 class Naive(Algorithm):
@@ -54,6 +54,7 @@ class Naive(Algorithm):
         self.step = 0
         self._action = np.zeros((E, A), dtype=np.float32)
         self.timers = Timers(device)
+        self.log = TrainLog(E, device)
 
     # -- hooks for learned rewards (GAIL) ------------------------------------------------------------------------
     def reward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor | None:
@@ -83,9 +84,13 @@ class Naive(Algorithm):
             with self.timers("buffer"):
                 batch = self.buf.sample(cfg.batch_size)
             with self.timers("update"):
-                self.agent.update(batch, reward=self.reward(batch))
+                self.log.add("sac/", self.agent.update(batch, reward=self.reward(batch)))
             self.learn_extra(batch)
         return self._action
+
+    def metrics(self) -> dict[str, np.ndarray]:
+        """sac/*: the agent's update diagnostics; episode/end_success: share of (pseudo-)episodes ending in success."""
+        return self.log.pop()
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
         sd = self.task.state_dim
@@ -97,6 +102,7 @@ class Naive(Algorithm):
         truncated = (cut | hard_reset) & ~terminal
         with self.timers("buffer"):
             self.buf.add(self._action, success.astype(np.float32), no, terminal, truncated)
+        self.log.add_host("episode/", {"end_success": terminal}, cut | hard_reset)
         self.step += 1
         if self.episodic:
             return cut  # the loop resets these envs and calls on_reset

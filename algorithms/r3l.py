@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task
+from algorithms.api import DemoSet, Task, setting
 from algorithms.core.nets import MemberMLP, host_mask, member_generators
 from algorithms.core.optim import MemberAdam
 from algorithms.forward_backward import ForwardBackward, ForwardBackwardConfig
@@ -41,10 +41,10 @@ RND_INIT_STREAM = 30
 
 @dataclass
 class R3LConfig(ForwardBackwardConfig):
-    rnd_hidden: int = 256
-    rnd_features: int = 512
-    rnd_lr: float = 3e-4
-    rnd_obs_clip: float = 5.0
+    rnd_hidden: int = setting(256, "hidden width of the RND networks", ge=1, le=65_536)
+    rnd_features: int = setting(512, "RND embedding width", ge=1, le=65_536)
+    rnd_lr: float = setting(3e-4, "Adam learning rate of the RND predictor", gt=0, le=1)
+    rnd_obs_clip: float = setting(5.0, "clip of the normalised RND input", gt=0, le=1e6)
 
 
 class RunningMeanStd:
@@ -156,7 +156,8 @@ class R3L(ForwardBackward):
     def learn_extra(self, bwd_batch, bwd_mask):
         if bwd_batch is not None:
             with self.timers("rnd"):
-                self.rnd.update(self._states(bwd_batch["next_obs"]), bwd_mask)
+                loss = self.rnd.update(self._states(bwd_batch["next_obs"]), bwd_mask)
+            self.log.add("rnd/", {"predictor_loss": loss}, bwd_mask)
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "rnd": self.rnd.state_dict()}
@@ -166,4 +167,4 @@ class R3L(ForwardBackward):
         self.rnd.load_state_dict(state["rnd"])
 
     def metrics(self) -> dict[str, np.ndarray]:
-        return {**super().metrics(), "novelty_std": self.rnd.novelty_rms.std.cpu().numpy().astype(np.float64)}
+        return {**super().metrics(), "rnd/novelty_std": self.rnd.novelty_rms.std.cpu().numpy().astype(np.float64)}

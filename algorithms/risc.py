@@ -37,7 +37,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task
+from algorithms.api import DemoSet, Task, setting
 from algorithms.common import load_rng_states, member_rngs, rng_states
 from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned
 
@@ -51,9 +51,9 @@ class RISCConfig(GCConfig):
     config_file: ClassVar[str] = "risc"  # risc_no_tab shares the per-env values of suites/algorithms/risc.yaml
 
     phase_step_limit: int = 200
-    conservative_factor: float = 0.9  # c
-    minimum_steps: int = 100
-    trajectory_proportion: float = 1.0
+    conservative_factor: float = setting(0.9, "c of the switch probability P_hat * (1 - c^t)", ge=0, le=1)
+    minimum_steps: int = setting(100, "no early switch before this phase step", ge=0, le=10**9)
+    trajectory_proportion: float = setting(1.0, "probability that a step may switch early", ge=0, le=1)
 
 
 @dataclass
@@ -119,7 +119,8 @@ class RISC(GoalConditioned):
 
     def update_aux(self, batch: dict) -> None:
         gamma = self.cfg.gamma
-        self.success.update(self.sac.actor, batch, lambda nxt: success_target(batch["terminal"], nxt, gamma))
+        loss = self.success.update(self.sac.actor, batch, lambda nxt: success_target(batch["terminal"], nxt, gamma))
+        self.log.add("success_critic/", {"loss": loss})
 
     def state_dict(self) -> dict[str, Any]:
         return {**super().state_dict(), "success": self.success.state_dict(),
@@ -132,7 +133,7 @@ class RISC(GoalConditioned):
         self.switches[:] = state["switches"]
 
     def metrics(self) -> dict[str, np.ndarray]:
-        return {**super().metrics(), "early_switches": self.switches.copy()}
+        return {**super().metrics(), "switch/early_switches_total": self.switches.copy()}
 
 
 class RISCNoTAB(RISC):

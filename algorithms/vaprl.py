@@ -1,4 +1,4 @@
-"""VaPRL: value-accelerated persistent RL (Sharma et al., NeurIPS 2021), docs/algorithms.md "VaPRL".
+"""VaPRL: value-accelerated persistent RL (Sharma et al., NeurIPS 2021), docs/reproduction.md "VaPRL".
 
 Two registered variants share this file:
 
@@ -17,7 +17,7 @@ Two registered variants share this file:
   than the published VaPRL curve (docs/reproduction.md, the VaPRL ablation).
 
 Settings the original code leaves to per-experiment flags that were not published (DEFAULT, documented in
-docs/algorithms.md): phase length 200 / 300 / 200 (RISC's values; the code's flag default is 400), the value threshold
+docs/reproduction.md): phase length 200 / 300 / 200 (RISC's values; the code's flag default is 400), the value threshold
 ``kappa * v_max`` with kappa 0.5, the multiplier's learning rate 3e-4 (flag default) and no upper bound (flag
 default), one policy action per value estimate (flag default ``num_action_samples`` 1).
 
@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task, demo_segments
+from algorithms.api import DemoSet, Task, demo_segments, setting
 from algorithms.common import load_rng_states, member_rngs, rng_states
 from algorithms.core.nets import generator_states, load_generator_states, member_generators
 from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned, policy_value
@@ -57,25 +57,26 @@ class VaPRLConfig(GCConfig):
 
     use_trunk: bool = False  # TF-Agents ActorDistributionNetwork / CriticNetwork: plain 256-256 MLPs
     bootstrap_on_truncation: bool = False  # phase end = TF-Agents termination (discount 0)
-    success_ends_phase: bool = False  # ResetFreeWrapper: success earns reward, the phase runs to its limit
-    relabel: str = "final"  # final | final_failed | future_demo | none
-    n_sampled_goals: int = 4  # future_demo: relabelled copies per transition
-    future_fraction: float = 0.5  # future_demo: share of goals from future states of the phase (the rest demo states)
-    curriculum: str = "lagrangian"  # lagrangian | nearest_feasible
-    value_critic: str = "sac"  # sac (the SAC critic, entropy included) | separate (a no-entropy critic)
-    value_actions: int = 1  # policy actions per value estimate (num_action_samples)
-    use_minimum: bool = True  # V = min(V(s_now -> c), V(c -> g*))
-    kappa: float = 0.5  # value threshold = kappa * v_max (per-env values NOT FOUND)
-    v_max: float = 10.0  # reward_scale * sparse reward
-    lagrange_lr: float = 3e-4  # Adam on the multiplier, one step per phase_step_limit env steps
-    lagrange_max: float = math.inf  # upper clip of the multiplier
+    success_ends_phase: bool = setting(False, "reaching the goal ends the phase (terminal); False: it earns "
+                                              "reward and the phase runs to its limit (ResetFreeWrapper)")
+    relabel: str = setting("final", "hindsight relabelling: final = one copy per phase with its final state, "
+                                    "final_failed = only of phases that missed their goal, future_demo = RISC's "
+                                    "n_sampled_goals per transition, none", choices=RELABEL)
+    n_sampled_goals: int = setting(4, "future_demo: relabelled copies per transition", ge=1, le=1024)
+    future_fraction: float = setting(0.5, "future_demo: share of goals from future states (the rest demo states)",
+                                     ge=0, le=1)
+    curriculum: str = setting("lagrangian", "subgoal rule: lagrangian = argmin L2(c, rho0) - lambda V, "
+                                            "nearest_feasible = RISC's", choices=CURRICULUM)
+    value_critic: str = setting("sac", "value for the curriculum: the SAC critic, or a separate no-entropy critic",
+                                choices=VALUE_CRITIC)
+    value_actions: int = 1  # num_action_samples of the original code
+    use_minimum: bool = setting(True, "V = min(V(s_now -> c), V(c -> g*)) (use_minimum)")
+    kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
+    v_max: float = setting(10.0, "reward_scale * sparse reward", gt=0, le=1e9)
+    lagrange_lr: float = setting(3e-4, "Adam learning rate of the multiplier (one step per phase_step_limit steps)",
+                                 ge=0, le=1)
+    lagrange_max: float = setting(math.inf, "upper clip of the multiplier", ge=0)
     buffer_capacity: int = 100_000_000
-
-    def validate(self) -> None:
-        super().validate()
-        for key, allowed in (("relabel", RELABEL), ("curriculum", CURRICULUM), ("value_critic", VALUE_CRITIC)):
-            if getattr(self, key) not in allowed:
-                raise ValueError(f"{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}")
 
 
 @dataclass
@@ -223,6 +224,9 @@ class VaPRL(GoalConditioned):
                     k = choose_subgoal(values[i], self.time_distance, self.threshold)
                 self.subgoal_index[i] = k
                 out[i] = self.candidates[k]
+                self.log.add_host("curriculum/", {"subgoal_value": values[:, k], "subgoal_l2_distance":
+                                                  np.full(self.E, self.l2_distance[k]), "subgoal_time_distance":
+                                                  np.full(self.E, float(self.time_distance[k]))}, np.arange(self.E) == i)
         return out
 
     def _values(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -315,7 +319,8 @@ class VaPRL(GoalConditioned):
         cfg = self.cfg
         m = self.sac.bootstrap_mask(batch["terminal"], batch["truncated"])
         scaled = cfg.reward_scale * batch["reward"]
-        self.value.update(self.sac.actor, batch, lambda nxt: scaled[:, None] + cfg.gamma * m[:, None] * nxt)
+        loss = self.value.update(self.sac.actor, batch, lambda nxt: scaled[:, None] + cfg.gamma * m[:, None] * nxt)
+        self.log.add("value_critic/", {"loss": loss})
 
     # -- checkpointing -------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
@@ -340,12 +345,9 @@ class VaPRL(GoalConditioned):
         self._phase = [list(p) for p in state["phase"]]
 
     def metrics(self) -> dict[str, np.ndarray]:
-        chosen = self.subgoal_index >= 0
-        idx = np.maximum(self.subgoal_index, 0)
-        return {**super().metrics(),
-                "subgoal_time_distance": np.where(chosen, self.time_distance[idx], np.nan),
-                "subgoal_l2_distance": np.where(chosen, self.l2_distance[idx], np.nan),
-                "lagrange_multiplier": self.lagrange.value.copy()}
+        """As the goal-conditioned base, plus curriculum/*: value and distances (L2 to rho0, time index) of the
+        subgoals chosen in the period, and the Lagrange multiplier now; value_critic/loss (vaprl_risc)."""
+        return {**super().metrics(), "curriculum/lagrange_multiplier": self.lagrange.value.copy()}
 
 
 class VaPRLRISC(VaPRL):

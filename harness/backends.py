@@ -50,21 +50,49 @@ def _report(err: str | None, errors: list[str]) -> None:
 # ---------------------------------------------------------------------------------------- local
 
 
+class Interrupted(Exception):
+    """The plan stopped on SIGINT/SIGTERM; ``runs`` groups were stopped at their last checkpoint."""
+
+    def __init__(self, runs: int):
+        super().__init__(f"{runs} run group(s) stopped")
+        self.runs = runs
+
+
+def _skip_locked(e: Exception, plan: Plan, skipped: list[str]) -> None:
+    """A group another process is training: an input error when it is the plan's only group, else skipped."""
+    if len(plan.groups) == 1:
+        raise e
+    print(f"harness: skipping {e}", file=sys.stderr, flush=True)
+    skipped.append(str(e))
+
+
 def run_local(plan: Plan, command: str) -> list[str]:
+    from harness.interrupts import RunInterrupted, RunLocked, sigterm_as_interrupt
     from harness.runner import run_group
 
     if plan.workers > 1:
         return run_pool(plan, command)
     errors: list[str] = []
-    for g in plan.groups:
-        _report(run_group(g, command), errors)
+    skipped: list[str] = []
+    with sigterm_as_interrupt():
+        for g in plan.groups:
+            try:
+                _report(run_group(g, command), errors)
+            except RunLocked as e:
+                _skip_locked(e, plan, skipped)
+            except RunInterrupted:
+                raise Interrupted(1) from None
     return errors
 
 
-def _pool_init(data_dir: str | None) -> None:
+def _pool_init(data_dir: str | None, queue=None) -> None:
     from harness import data as data_mod
+    from harness import runner
+    from harness.interrupts import init_worker
 
+    init_worker()
     data_mod.set_data_dir(data_dir)
+    runner._progress_queue = queue
 
 
 def _data_dir() -> str | None:
@@ -73,50 +101,98 @@ def _data_dir() -> str | None:
     return getattr(data_mod, "_explicit_default", None)
 
 
+def _drain(q) -> None:
+    import queue as queue_mod
+
+    while True:
+        try:
+            print(q.get_nowait(), flush=True)
+        except (queue_mod.Empty, OSError, EOFError):
+            return
+
+
 def run_pool(plan: Plan, command: str) -> list[str]:
-    """The groups in a pool of ``plan.workers`` spawned processes; progress lines through a queue."""
+    """The groups in a pool of ``plan.workers`` spawned processes; progress lines through a queue. Ctrl-C or SIGTERM:
+    no new group starts, the running ones stop at once (statuses ``interrupted``) and :class:`Interrupted` is
+    raised; a second signal kills the workers (see :mod:`harness.interrupts`)."""
     import multiprocessing as mp
     import queue as queue_mod
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, wait
+    from concurrent.futures.process import BrokenProcessPool
 
+    from harness.interrupts import RunInterrupted, RunLocked, sigterm_as_interrupt, stop_children
     from harness.runner import run_group
 
     ctx = mp.get_context("spawn")
-    manager = ctx.Manager()
-    q = manager.Queue()
+    q = ctx.Queue()
     threads = max(1, (os.cpu_count() or 1) // plan.workers)
     errors: list[str] = []
-    with ProcessPoolExecutor(max_workers=plan.workers, mp_context=ctx, initializer=_pool_init,
-                             initargs=(_data_dir(),)) as pool:
-        futures = [pool.submit(run_group, g, command, q, threads) for g in plan.groups]
-        pending = set(futures)
-        while pending:
-            try:
-                print(q.get(timeout=0.5), flush=True)
-            except queue_mod.Empty:
-                pass
-            for f in [f for f in pending if f.done()]:
-                pending.discard(f)
-                _report(f.result(), errors)
-        while not q.empty():
-            print(q.get(), flush=True)
-    manager.shutdown()
+    skipped: list[str] = []
+    stopped = 0
+    pool = ProcessPoolExecutor(max_workers=plan.workers, mp_context=ctx, initializer=_pool_init,
+                               initargs=(_data_dir(), q))
+    futures = []
+    try:
+        with sigterm_as_interrupt():
+            futures = [pool.submit(run_group, g, command, None, threads) for g in plan.groups]
+            pending = set(futures)
+            while pending:
+                try:
+                    print(q.get(timeout=0.5), flush=True)
+                except queue_mod.Empty:
+                    pass
+                for f in [f for f in pending if f.done()]:
+                    pending.discard(f)
+                    try:
+                        _report(f.result(), errors)
+                    except RunLocked as e:
+                        _skip_locked(e, plan, skipped)
+    except KeyboardInterrupt:
+        for f in futures:
+            f.cancel()
+        stop_children(lambda: wait(futures))
+        for f in futures:
+            if f.done() and not f.cancelled():
+                try:
+                    f.result()
+                except (RunInterrupted, BrokenProcessPool):
+                    stopped += 1
+                except Exception:  # noqa: BLE001 - finished or failed before the interrupt: reported by its status
+                    pass
+        pool.shutdown(wait=True, cancel_futures=True)
+        _drain(q)
+        raise Interrupted(stopped) from None
+    pool.shutdown(wait=True)
+    _drain(q)
     return errors
 
 
 def run_local_tasks(fn: Callable[..., Any], args_list: list[tuple], workers: int) -> list[Any]:
     """``fn(*args)`` for each args tuple: in this process when there is one, else one spawned process
-    each (tuning's workers). Returns the results in order."""
+    each (tuning's workers). Returns the results in order. Ctrl-C / SIGTERM stop the workers (as in
+    :func:`run_pool`) and raise :class:`Interrupted`."""
+    from harness.interrupts import sigterm_as_interrupt, stop_children
+
     if len(args_list) == 1 or workers <= 1:
-        return [fn(*a) for a in args_list]
+        with sigterm_as_interrupt():
+            return [fn(*a) for a in args_list]
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, wait
 
     ctx = mp.get_context("spawn")
-    with ProcessPoolExecutor(max_workers=len(args_list), mp_context=ctx, initializer=_pool_init,
-                             initargs=(_data_dir(),)) as pool:
-        futures = [pool.submit(fn, *a) for a in args_list]
-        return [f.result() for f in futures]
+    pool = ProcessPoolExecutor(max_workers=len(args_list), mp_context=ctx, initializer=_pool_init,
+                               initargs=(_data_dir(),))
+    futures = []
+    try:
+        with sigterm_as_interrupt():
+            futures = [pool.submit(fn, *a) for a in args_list]
+            out = [f.result() for f in futures]
+    except KeyboardInterrupt:
+        stop_children(lambda: wait(futures), "tuning worker(s)")
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise Interrupted(len(futures)) from None
+    pool.shutdown(wait=True)
+    return out
 
 
 # ------------------------------------------------------------------------------------------ ray
@@ -231,6 +307,22 @@ def run_ray_tasks(ray, fn: Callable[..., Any], args_list: list[tuple], labels: l
     return out
 
 
+def _mark_interrupted(plan: Plan) -> int:
+    """After cancelling Ray tasks: the runs that were training say ``interrupted``; returns the number of groups."""
+    from harness.protocol import RunSpec
+    from harness.results import read_status, update_status
+
+    n = 0
+    for g in plan.groups:
+        dirs = RunSpec(suite=g["suite"], env=g["env"], algo=g["algo"], seeds=g["seeds"], steps=g["steps"],
+                       results=g["results"]).member_dirs()
+        running = [d for d in dirs if (read_status(d) or {}).get("state") in ("running", "resumed")]
+        for d in running:
+            update_status(d, state="interrupted", steps_per_s=0.0)
+        n += bool(running)
+    return n
+
+
 def ray_options(device: str, num_cpus: float) -> dict[str, Any]:
     opts: dict[str, Any] = {"num_cpus": num_cpus, "max_retries": RAY_MAX_RETRIES, "retry_exceptions": True}
     if str(device).startswith("cuda"):
@@ -250,8 +342,11 @@ def run_ray(plan: Plan, command: str, address: str | None = None) -> list[str]:
         def on_error(label: str, line: str) -> None:
             _report(line if line.startswith(label) else f"{label}: {line}", errors)
 
-        run_ray_tasks(ray, _ray_group, [(g, command, threads, data_dir, env) for g in plan.groups], labels,
-                      ray_options(plan.groups[0]["device"], 1), on_error)
+        try:
+            run_ray_tasks(ray, _ray_group, [(g, command, threads, data_dir, env) for g in plan.groups], labels,
+                          ray_options(plan.groups[0]["device"], 1), on_error)
+        except KeyboardInterrupt:
+            raise Interrupted(_mark_interrupted(plan)) from None
     finally:
         if started:
             ray.shutdown()

@@ -152,18 +152,55 @@ def cmd_tune(args) -> int:
     return tune_cli(args.overrides, best=args.best)
 
 
+def keys_help(table: dict[str, tuple[str, str]], algorithm_settings: bool = True) -> str:
+    """The epilog of ``run``/``tune --help``: every key=value word with its default and meaning, then every
+    algorithm setting (the shared SAC ones once, then each algorithm's own)."""
+    lines = ["keys (key=value, in any order, flags anywhere):"]
+    lines += [f"  {k:<18} {meaning} [default: {default}]" for k, (default, meaning) in table.items()]
+    if algorithm_settings:
+        from algorithms.common import SACAlgoConfig
+        from harness.registry import ALGORITHMS
+
+        lines += ["", "algorithm settings (<algo>.<key>=value, or all.<key>=value for every selected algorithm that "
+                      "has the key); defaults shown are the dataclass defaults, per-env values in "
+                      "suites/algorithms/<algo>.yaml:", "  SAC, shared by every SAC-based algorithm:"]
+        shared = {k for k, _, _ in SACAlgoConfig.describe()}
+        lines += [f"    {k:<24} {h} [default: {d}]" for k, d, h in SACAlgoConfig.describe()]
+        for name, cls in ALGORITHMS.items():
+            own = [(k, d, h) for k, d, h in cls.Config.describe()
+                   if k not in shared or d != getattr(SACAlgoConfig(), k, object())]
+            if own:
+                lines.append(f"  {name}:")
+                lines += [f"    {k:<24} {h} [default: {d}]" for k, d, h in own]
+    return "\n".join(lines)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with the harness's error format: one line on stderr, exit code 2."""
+
+    def error(self, message: str):
+        print(f"harness: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
+        sys.exit(2)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="harness", description="EARL benchmark harness for reset-free RL")
+    p = Parser(prog="harness", description="EARL benchmark harness for reset-free RL")
     p.add_argument("--data-dir", help="EARL data directory (default: HARNESS_DATA_DIR, cache, ../shared/earl)")
-    sub = p.add_subparsers(dest="cmd", required=True)
+    sub = p.add_subparsers(dest="cmd", required=True, parser_class=Parser)
     sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
 
-    r = sub.add_parser("run", help="run a suite or an ad-hoc set of runs (key=value overrides)")
+    from harness.runner import RUN_KEYS
+    from harness.tune import TUNE_KEY_HELP
+
+    raw = argparse.RawDescriptionHelpFormatter
+    r = sub.add_parser("run", help="run a suite or an ad-hoc set of runs (key=value overrides)",
+                       epilog=keys_help(RUN_KEYS), formatter_class=raw)
     r.add_argument("overrides", nargs="*")
     r.add_argument("--dry-run", action="store_true", help="print the plan and exit")
     r.set_defaults(fn=cmd_run)
 
-    t = sub.add_parser("tune", help="tune an algorithm's hyperparameters with Optuna (key=value overrides)")
+    t = sub.add_parser("tune", help="tune an algorithm's hyperparameters with Optuna (key=value overrides)",
+                       epilog=keys_help(TUNE_KEY_HELP), formatter_class=raw)
     t.add_argument("overrides", nargs="*")
     t.add_argument("--best", action="store_true", help="print the study's best parameters as a YAML override")
     t.set_defaults(fn=cmd_tune)
@@ -196,10 +233,18 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     import yaml
 
+    from harness.backends import Interrupted
     from harness.envs import UnknownEnvError
 
     parser = build_parser()
-    args = parser.parse_args(argv)
+    # flags may stand anywhere among the key=value words: argparse stops filling ``overrides`` at the first flag and
+    # hands back the words after it, which are key=value words too
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        if not hasattr(args, "overrides") or any(w.startswith("-") for w in extra):
+            parser.parse_args(argv)  # the usual argparse error for what is really unknown
+        args.overrides = [*args.overrides, *extra]
+    previous = data_mod._explicit_default
     data_mod.set_data_dir(args.data_dir)
     try:
         return args.fn(args)
@@ -207,9 +252,15 @@ def main(argv: list[str] | None = None) -> int:
         msg = " ".join(str(e).split())
         print(f"harness: error: {msg}", file=sys.stderr)
         return 2
+    except Interrupted as e:
+        print(f"harness: interrupted: {e.runs} run group(s) stopped at their last checkpoint; run the same command "
+              "again to resume them", file=sys.stderr)
+        return 130
     except KeyboardInterrupt:
         print("harness: interrupted", file=sys.stderr)
         return 130
+    finally:
+        data_mod.set_data_dir(previous)  # main() called in-process (tests, notebooks) leaves no global behind
 
 
 if __name__ == "__main__":

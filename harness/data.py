@@ -14,6 +14,7 @@ project-local cache (``HARNESS_CACHE_DIR`` or ``<project>/.cache/earl``, filled 
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 import pickle
@@ -43,12 +44,13 @@ def cache_dir() -> Path:
 
 
 def candidate_dirs(explicit: str | os.PathLike | None = None) -> list[tuple[str, Path]]:
-    """The places searched, in order, with a label each."""
-    out: list[tuple[str, Path]] = []
+    """The places searched, in order, with a label each. An explicit directory (``--data-dir`` or
+    ``HARNESS_DATA_DIR``) is the only place searched: a user who names one must get that data or an error."""
     if explicit:
-        out.append(("--data-dir", Path(explicit).expanduser()))
-    elif os.environ.get("HARNESS_DATA_DIR"):
-        out.append(("HARNESS_DATA_DIR", Path(os.environ["HARNESS_DATA_DIR"]).expanduser()))
+        return [("--data-dir", Path(explicit).expanduser())]
+    if os.environ.get("HARNESS_DATA_DIR"):
+        return [("HARNESS_DATA_DIR", Path(os.environ["HARNESS_DATA_DIR"]).expanduser())]
+    out: list[tuple[str, Path]] = []
     out.append(("cache", cache_dir()))
     out.append(("../shared/earl", PROJECT_ROOT.parent / "shared" / "earl"))
     return out
@@ -71,6 +73,11 @@ def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None
     for _, d in cands:
         if (d / need).exists():
             return d
+    if len(cands) == 1:
+        label, d = cands[0]
+        what = "does not exist" if not d.exists() else f"has no '{need}'"
+        raise DataNotFoundError(f"the EARL data directory given by {label} ({d}) {what}. Fix: point {label} at a "
+                                "directory made by `harness data fetch` (demos/, assets/, reference/), or unset it")
     looked = ", ".join(f"{label} ({d})" for label, d in cands)
     raise DataNotFoundError(
         f"EARL data '{need}' not found; looked in {looked}. "
@@ -110,6 +117,15 @@ class Demos:
 
     def trajectories(self) -> list[dict[str, np.ndarray]]:
         return [{k: getattr(self, k)[sl] for k in DEMO_KEYS} for sl in self.trajectory_slices()]
+
+
+def demos_fingerprint(env: str) -> dict[str, str]:
+    """Where the demos of ``env`` were read from and a SHA-256 of their two files (recorded in ``run.yaml``)."""
+    h = hashlib.sha256()
+    paths = [demo_path(env, d) for d in DIRECTIONS]
+    for p in paths:
+        h.update(p.read_bytes())
+    return {"data_dir": str(paths[0].parent.parent.parent.resolve()), "demos_sha256": h.hexdigest()}
 
 
 def demo_path(env: str, direction: str, data_dir: Path | None = None) -> Path:

@@ -40,7 +40,7 @@ import torch
 
 from algorithms.api import Algorithm
 from harness.envs import make_env, make_train_env
-from harness.results import RunResults, run_dir, write_status
+from harness.results import TRAIN_FILE, RunResults, run_dir, write_status
 
 CHECKPOINT_FILE = "checkpoint.pt"
 
@@ -57,6 +57,7 @@ class RunSpec:
     eval_every: int = 10_000
     eval_episodes: int = 10
     checkpoint_every: int = 50_000
+    log_every: int = 1000  # training diagnostics (Algorithm.metrics) into train.parquet; divides eval_every
     device: str = "cpu"
     results: str = "results"
     meta: dict[str, Any] = field(default_factory=dict)  # config hash, git sha, demo source, ...
@@ -83,6 +84,23 @@ class Progress:
     steps_per_s: float
     eta_s: float
     success: list[float]
+    resumed: bool = False  # the run just resumed from its checkpoint at ``step``
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint that cannot be read; the message names the file and the fix."""
+
+
+def load_checkpoint(path: Path) -> dict[str, Any]:
+    try:
+        ck = torch.load(path, weights_only=False)
+        if not isinstance(ck, dict) or not {"step", "wall_s", "last_success", "algo", "interaction"} <= set(ck):
+            raise ValueError("not a harness checkpoint")
+        return ck
+    except Exception as e:  # noqa: BLE001 - torch.load raises many kinds on a truncated or foreign file
+        raise CheckpointError(
+            f"checkpoint {path} is unreadable ({type(e).__name__}: {' '.join(str(e).split())[:120]}): delete it to "
+            "restart these runs from step 0 (their results are rewritten), or restore it from a copy") from None
 
 
 class DivergedError(RuntimeError):
@@ -204,16 +222,19 @@ def train(
         RunResults(d, {"suite": spec.suite, "env": spec.env, "algo": spec.algo, "seed": s}, {**spec.meta, "members": E})
         for d, s in zip(dirs, spec.seeds)
     ]
+    diagnostics = [RunResults(r.dir, r.ident, {**spec.meta, "members": E}, TRAIN_FILE) for r in results]
     ckpt_path = spec.checkpoint_path()
     status = "running"
     if ckpt_path.exists():
-        ck = torch.load(ckpt_path, weights_only=False)
+        ck = load_checkpoint(ckpt_path)
         step, wall, last_success = ck["step"], ck["wall_s"], ck["last_success"]
         algo.load_state_dict(ck["algo"])
         inter.load_state_dict(ck["interaction"])
-        for r in results:
+        for r in results + diagnostics:
             r.resume(step)
         status = "resumed"
+        if on_progress:
+            on_progress(Progress(step, spec.steps, 0.0, math.inf, list(last_success), resumed=True))
     else:
         step, wall = 0, 0.0
         inter.start(algo)
@@ -240,7 +261,15 @@ def train(
                 "deployed_success": succ[i], "deployed_return": ret[i], "continuing_reward": inter.cum_reward[i],
                 "interventions": n_inter[i], "steps_per_s": rate, "wall_s": wall,
             })
+        for d in diagnostics:
+            d.flush()
         report(rate, status)
+
+    def log_train() -> None:
+        """Algorithm.metrics() (means since the last call), finite values only, written with the next evaluation."""
+        m = algo.metrics()
+        for i, d in enumerate(diagnostics):
+            d.append(step, {k: float(v[i]) for k, v in m.items() if np.isfinite(v[i])}, flush=False)
 
     if step == 0 and not results[0].rows:
         log_eval(0.0)
@@ -252,6 +281,8 @@ def train(
     while step < spec.steps:
         inter.step(algo, step + 1)
         step += 1
+        if step % spec.log_every == 0 or step == spec.steps:
+            log_train()
         if step % spec.eval_every == 0 or step == spec.steps:
             now = time.perf_counter()
             rate = (step - s_mark) / max(now - t_mark, 1e-9)  # training steps/s, evaluation excluded

@@ -18,6 +18,7 @@ onto ours so the two concatenate.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -35,6 +36,7 @@ META_COLUMNS = ["source", "config_hash", "git_sha", "demo_source", "device", "me
 METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions", "steps_per_s", "wall_s")
 PUBLISHED_METRICS = {"deployed": "deployed_success", "continuing_cumulative_reward": "continuing_reward"}
 EVALS_FILE, RUN_FILE, STATUS_FILE = "evals.parquet", "run.yaml", "status.json"
+TRAIN_FILE = "train.parquet"  # training diagnostics (Algorithm.metrics every log_every steps), same columns
 
 
 def run_dir(results: Path, suite: str, env: str, algo: str, seed: int) -> Path:
@@ -52,8 +54,8 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
 class RunResults:
     """Rows of one run, kept in memory and written atomically after every append."""
 
-    def __init__(self, directory: Path, ident: dict[str, Any], meta: dict[str, Any]):
-        self.dir = Path(directory)
+    def __init__(self, directory: Path, ident: dict[str, Any], meta: dict[str, Any], filename: str = EVALS_FILE):
+        self.dir, self.filename = Path(directory), filename
         self.ident = ident  # suite, env, algo, seed
         self.meta = {k: meta.get(k) for k in META_COLUMNS}
         self.meta["source"] = self.meta.get("source") or "harness"
@@ -61,7 +63,7 @@ class RunResults:
 
     @property
     def path(self) -> Path:
-        return self.dir / EVALS_FILE
+        return self.dir / self.filename
 
     def resume(self, step: int) -> None:
         """Keep the rows written up to ``step`` (the checkpoint's), drop any later ones."""
@@ -71,10 +73,11 @@ class RunResults:
         else:
             self.rows = []
 
-    def append(self, step: int, values: dict[str, float]) -> None:
+    def append(self, step: int, values: dict[str, float], flush: bool = True) -> None:
         for metric, value in values.items():
             self.rows.append({**self.ident, "step": int(step), "metric": metric, "value": float(value), **self.meta})
-        self.flush()
+        if flush:
+            self.flush()
 
     def frame(self) -> pd.DataFrame:
         df = pd.DataFrame(self.rows, columns=COLUMNS + META_COLUMNS)
@@ -84,9 +87,21 @@ class RunResults:
         atomic_write_bytes(self.path, _parquet_bytes(self.frame()))
 
 
+def _strict(v: Any) -> Any:
+    """JSON-safe: non-finite floats (an unknown ETA, a success not measured yet) become null."""
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if isinstance(v, (list, tuple)):
+        return [_strict(x) for x in v]
+    return v
+
+
 def write_status(directory: Path, **fields: Any) -> None:
+    """``status.json``, strict JSON (no NaN / Infinity: they are written as null)."""
     fields.setdefault("updated", time.time())
-    atomic_write_bytes(Path(directory) / STATUS_FILE, json.dumps(fields, indent=1, default=str).encode())
+    fields = {k: _strict(v) for k, v in fields.items()}
+    atomic_write_bytes(Path(directory) / STATUS_FILE,
+                       json.dumps(fields, indent=1, default=str, allow_nan=False).encode())
 
 
 def update_status(directory: Path, **fields: Any) -> None:
@@ -104,12 +119,13 @@ def read_status(directory: Path) -> dict[str, Any] | None:
         return None
 
 
-def load(path: str | Path, warn=None) -> pd.DataFrame:
-    """All results under ``path`` as one long DataFrame (empty with the right columns if none)."""
+def load(path: str | Path, warn=None, filename: str = EVALS_FILE) -> pd.DataFrame:
+    """All results under ``path`` as one long DataFrame (empty with the right columns if none); ``filename``
+    :data:`TRAIN_FILE` reads the training diagnostics instead of the evaluations."""
     warn = warn or (lambda msg: print(msg, file=sys.stderr))
     tables = []
     root = Path(path)
-    files = [root] if root.is_file() else sorted(root.rglob(EVALS_FILE))
+    files = [root] if root.is_file() else sorted(root.rglob(filename))
     for f in files:
         try:
             tables.append(pq.read_table(f))
@@ -130,6 +146,11 @@ def load_published(data_dir: str | Path | None = None) -> pd.DataFrame:
     return df
 
 
+def load_train(path: str | Path, warn=None) -> pd.DataFrame:
+    """The training diagnostics (``train.parquet``) under ``path``, in the evaluations' long format."""
+    return load(path, warn, TRAIN_FILE)
+
+
 def ship(source: str | Path, suite: str, dest: str | Path) -> list[Path]:
     """Copy the evaluation tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``run.yaml``,
     ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
@@ -144,7 +165,7 @@ def ship(source: str | Path, suite: str, dest: str | Path) -> list[Path]:
         run = evals.parent
         if "checkpoints" in run.relative_to(src).parts:
             continue
-        for name in (EVALS_FILE, RUN_FILE, STATUS_FILE):
+        for name in (EVALS_FILE, RUN_FILE, STATUS_FILE):  # not train.parquet: larger, and kept with the runs
             if (run / name).is_file():
                 target = dst / run.relative_to(src) / name
                 atomic_write_bytes(target, (run / name).read_bytes())

@@ -29,13 +29,40 @@ import numpy as np
 import torch
 import yaml
 
-from harness.suites import ConfigError, Plan, as_plain, check_all_keys, config_hash, load_suite, resolve_algo_config
+from harness.suites import (
+    ConfigError,
+    Plan,
+    as_plain,
+    check_all_keys,
+    check_name,
+    config_hash,
+    load_suite,
+    resolve_algo_config,
+)
 from harness.suites import parse_int as _int
 
-RUN_KEYS = {
-    "suite", "algo", "algos", "env", "envs", "seeds", "steps", "eval_every", "eval_episodes",
-    "checkpoint_every", "members", "workers", "device", "results", "backend", "ray_address",
+#: every key=value word of ``harness run``: (default, meaning); ``harness run --help`` prints this table
+RUN_KEYS: dict[str, tuple[str, str]] = {
+    "suite": ("-", "a suite in suites/ or a path to a suite YAML (its name names the results directory)"),
+    "algo": ("-", "algorithm(s), comma-separated (ad hoc; with a suite of cells: selects cells)"),
+    "algos": ("-", "same as algo"),
+    "env": ("-", "env(s), comma-separated: tabletop_manipulation, sawyer_door, sawyer_peg"),
+    "envs": ("-", "same as env"),
+    "seeds": ("1", "a count (seeds 0..n-1) or a comma list of distinct seeds"),
+    "steps": ("3M/5M/8M per env", "training steps per run"),
+    "eval_every": ("10000", "steps between deployed-policy evaluations"),
+    "eval_episodes": ("10", "episodes per evaluation"),
+    "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every)"),
+    "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every)"),
+    "members": ("1 (cells: the cell's seeds)", "seeds trained in lockstep by one process"),
+    "workers": ("cores", "processes running groups in parallel"),
+    "device": ("cpu", "torch device, e.g. cpu or cuda:0"),
+    "results": ("results", "results directory"),
+    "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
+    "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
 }
+#: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
+MAX_STEPS, MAX_SEEDS, MAX_SEED, MAX_MEMBERS, MAX_EPISODES, MAX_WORKERS = 10**9, 1000, 2**31 - 1, 1024, 10_000, 1024
 BACKENDS = ("local", "ray")
 DEFAULT_STEPS = {"tabletop_manipulation": 3_000_000, "sawyer_door": 5_000_000, "sawyer_peg": 8_000_000}
 PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
@@ -49,11 +76,22 @@ def _list(v: Any) -> list[str]:
 
 def _seeds(v: Any) -> list[int]:
     if isinstance(v, (list, tuple)) or (isinstance(v, str) and "," in v):
-        seeds = [_int("seeds", x, 0) for x in _list(v)]
+        seeds = [_int("seeds", x, 0, MAX_SEED) for x in _list(v)]
         if len(set(seeds)) != len(seeds):
             raise ConfigError(f"seeds must be distinct, got {v!r}")
+        if len(seeds) > MAX_SEEDS:
+            raise ConfigError(f"at most {MAX_SEEDS} seeds per run command, got {len(seeds)}")
         return seeds
-    return list(range(_int("seeds", v, 1)))
+    return list(range(_int("seeds", v, 1, MAX_SEEDS)))
+
+
+def _names(key: str, v: Any) -> list[str]:
+    """A list of algorithm or env names; a name given twice is an input error (it would plan a group twice)."""
+    names = _list(v)
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError(f"{key} lists {', '.join(twice)} more than once")
+    return names
 
 
 def _device(v: str) -> str:
@@ -121,20 +159,20 @@ def _product_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int
     """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env."""
     from harness.registry import ALGORITHMS
 
-    algos = _list(ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
-    envs = _list(ov.get("envs") or ov.get("env") or suite.get("envs") or [])
+    algos = _names("algo", ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
+    envs = _names("env", ov.get("envs") or ov.get("env") or suite.get("envs") or [])
     _check_envs_algos(envs, algos)
     seeds = seeds_ov if seeds_ov is not None else _seeds(suite.get("seeds", 1))
-    members = _int("members", suite.get("members", 1), 1)
+    members = _int("members", suite.get("members", 1), 1, MAX_MEMBERS)
     steps_cfg = ov.get("steps", suite.get("steps", DEFAULT_STEPS))
     units = []
     for env in envs:
         if isinstance(steps_cfg, dict):
             if env not in steps_cfg:
                 raise ConfigError(f"suite gives no step budget for env {env!r}")
-            steps = _int(f"steps[{env}]", steps_cfg[env], 1)
+            steps = _int(f"steps[{env}]", steps_cfg[env], 1, MAX_STEPS)
         else:
-            steps = _int("steps", steps_cfg, 1)
+            steps = _int("steps", steps_cfg, 1, MAX_STEPS)
         units += [Unit(env, a, a, steps, seeds, members, {}) for a in algos if a in ALGORITHMS]
     return units, [a for a in algos if a not in ALGORITHMS]
 
@@ -148,8 +186,8 @@ def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] |
     cells = suite["cells"]
     if not isinstance(cells, list) or not cells:
         raise ConfigError("suite key 'cells' must be a non-empty list of {algo, env, steps, ...} mappings")
-    pick_algos = set(_list(ov.get("algos") or ov.get("algo") or []))
-    pick_envs = set(_list(ov.get("envs") or ov.get("env") or []))
+    pick_algos = set(_names("algo", ov.get("algos") or ov.get("algo") or []))
+    pick_envs = set(_names("env", ov.get("envs") or ov.get("env") or []))
     units, seen = [], set()
     for n, c in enumerate(cells):
         where = f"cell {n + 1} of suite 'cells'"
@@ -159,8 +197,7 @@ def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] |
             raise ConfigError(f"unknown key(s) {sorted(set(c) - CELL_KEYS)} in {where}; known: {sorted(CELL_KEYS)}")
         algo, env, name = str(c["algo"]), str(c["env"]), str(c.get("name") or c["algo"])
         _check_envs_algos([env], [algo])
-        if not name.replace("_", "").isalnum():
-            raise ConfigError(f"{where}: name must be letters, digits and '_', got {name!r}")
+        check_name(f"{where}:", name)
         if (env, name) in seen:
             raise ConfigError(f"{where}: two cells run {name!r} on {env!r}; give one a distinct name")
         seen.add((env, name))
@@ -170,8 +207,8 @@ def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] |
         if pick_algos and not pick_algos & {algo, name} or pick_envs and env not in pick_envs:
             continue
         seeds = seeds_ov if seeds_ov is not None else _seeds(c.get("seeds", suite.get("seeds", 1)))
-        steps = _int(f"steps of {where}", ov.get("steps", c["steps"]), 1)
-        members = _int(f"members of {where}", c.get("members", suite.get("members", len(seeds))), 1)
+        steps = _int(f"steps of {where}", ov.get("steps", c["steps"]), 1, MAX_STEPS)
+        members = _int(f"members of {where}", c.get("members", suite.get("members", len(seeds))), 1, MAX_MEMBERS)
         units.append(Unit(env, name, algo, steps, seeds, members, dict(config)))
     if not units:
         raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(pick_algos)) or '*'} "
@@ -186,10 +223,14 @@ def build_plan(words: list[str]) -> Plan:
 
     ov: dict[str, str] = {}
     algo_ov: dict[str, dict[str, str]] = {}
+    seen: set[str] = set()
     for w in words:
         if "=" not in w:
             raise ConfigError(f"expected key=value, got {w!r}")
         k, v = w.split("=", 1)
+        if k in seen:
+            raise ConfigError(f"{k} is given twice ({w!r}); give each key once")
+        seen.add(k)
         if "." in k:
             scope, key = k.split(".", 1)
             if scope != "all" and scope not in ALGORITHMS:
@@ -199,6 +240,9 @@ def build_plan(words: list[str]) -> Plan:
             raise ConfigError(f"unknown key {k!r}; known keys: {', '.join(sorted(RUN_KEYS))} or <algo>.<key>")
         else:
             ov[k] = v
+    for a, b in (("algo", "algos"), ("env", "envs")):
+        if a in ov and b in ov:
+            raise ConfigError(f"give {a}= or {b}=, not both")
 
     if "suite" in ov:
         suite_name, suite = load_suite(ov["suite"])
@@ -208,12 +252,15 @@ def build_plan(words: list[str]) -> Plan:
         suite_name, suite = "adhoc", {}
 
     seeds_ov = _seeds(ov["seeds"]) if "seeds" in ov else None
-    members_ov = _int("members", ov["members"], 1) if "members" in ov else None
-    eval_every = _int("eval_every", ov.get("eval_every", suite.get("eval_every", 10_000)), 1)
-    eval_episodes = _int("eval_episodes", ov.get("eval_episodes", suite.get("eval_episodes", 10)), 1)
-    ckpt = _int("checkpoint_every", ov.get("checkpoint_every", suite.get("checkpoint_every", 50_000)), 1)
+    members_ov = _int("members", ov["members"], 1, MAX_MEMBERS) if "members" in ov else None
+    eval_every = _int("eval_every", ov.get("eval_every", suite.get("eval_every", 10_000)), 1, MAX_STEPS)
+    eval_episodes = _int("eval_episodes", ov.get("eval_episodes", suite.get("eval_episodes", 10)), 1, MAX_EPISODES)
+    ckpt = _int("checkpoint_every", ov.get("checkpoint_every", suite.get("checkpoint_every", 50_000)), 1, MAX_STEPS)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
+    log_every = _int("log_every", ov.get("log_every", suite.get("log_every", min(1000, eval_every))), 1, MAX_STEPS)
+    if eval_every % log_every:
+        raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
     backend = ov.get("backend", "local")
     if backend not in BACKENDS:
         raise ConfigError(f"unknown backend {backend!r}; known backends: {', '.join(BACKENDS)}")
@@ -233,6 +280,11 @@ def build_plan(words: list[str]) -> Plan:
     else:
         units, unregistered = _product_units(suite, ov, seeds_ov)
     plan = Plan(suite_name, unregistered=unregistered)
+    selected = {u.algo_class for u in units}
+    stray = sorted(set(algo_ov) - selected - {"all"})
+    if stray:
+        raise ConfigError(f"override(s) for {', '.join(stray)} match no selected algorithm "
+                          f"(selected: {', '.join(sorted(selected)) or 'none'})")
     check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, algo_ov)
     protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
     for u in units:
@@ -251,11 +303,12 @@ def build_plan(words: list[str]) -> Plan:
                 {
                     "suite": suite_name, "env": u.env, "algo": u.name, "algo_class": u.algo_class,
                     "seeds": u.seeds[i : i + members], "steps": u.steps, "eval_every": eval_every,
-                    "eval_episodes": eval_episodes, "checkpoint_every": ckpt, "device": device, "results": results,
+                    "eval_episodes": eval_episodes, "checkpoint_every": ckpt, "log_every": log_every,
+                    "device": device, "results": results,
                     "config": cfg_plain, "config_hash": h, "demo_source": fwd.source,
                 }
             )
-    workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1)
+    workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1, MAX_WORKERS)
     plan.workers = min(workers, max(len(plan.groups), 1))
     plan.backend, plan.ray_address = backend, ov.get("ray_address")  # read by harness.backends.run_plan
     _check_results_dirs(plan)
@@ -265,7 +318,7 @@ def build_plan(words: list[str]) -> Plan:
 def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
     """True when ``new`` keeps every key of ``old`` with the same value and only adds keys.
 
-    Project rule (docs/extending.md): a config key added to an algorithm defaults to the behaviour the code had
+    Project rule (README, Results): a config key added to an algorithm defaults to the behaviour the code had
     before it existed, so a run started before the key was added resumes under the new code unchanged."""
     return all(k in new and new[k] == v for k, v in old.items())
 
@@ -278,8 +331,9 @@ def _check_results_dirs(plan: Plan) -> None:
     for g in plan.groups:
         for s in g["seeds"]:
             p = run_dir(Path(g["results"]), g["suite"], g["env"], g["algo"], s) / RUN_FILE
+            _check_writable(p.parent)
             if p.exists():
-                old = yaml.safe_load(p.read_text()) or {}
+                old = read_run_record(p)
                 if old.get("config_hash") == g["config_hash"]:
                     continue
                 same_protocol = all(old.get(k) == g[k] for k in ("eval_every", "eval_episodes", "demo_source"))
@@ -294,57 +348,121 @@ def _check_results_dirs(plan: Plan) -> None:
                 )
 
 
+def _check_writable(d: Path) -> None:
+    """The nearest existing directory of ``d`` must be writable (and ``d`` itself, if it exists)."""
+    probe = d
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise ConfigError(f"results directory {probe} is not writable (needed for {d}); choose another results=")
+
+
+def read_run_record(p: Path) -> dict[str, Any]:
+    """A run's ``run.yaml`` as a mapping, or a one-line error naming the file and the fix."""
+    from harness.suites import read_yaml_text
+
+    fix = "delete it (it is rewritten when the run starts; the run resumes from its checkpoint)"
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read {p} ({getattr(e, 'strerror', None) or 'not UTF-8 text'}): {fix}") from None
+    try:
+        rec = read_yaml_text(text, str(p))
+    except ConfigError as e:
+        raise ConfigError(f"{e}: {fix}") from None
+    if not isinstance(rec, dict) or not rec:
+        what = "empty" if rec is None or rec == {} else f"a YAML {type(rec).__name__}, not a run record"
+        raise ConfigError(f"{p} is {what}: {fix}")
+    return rec
+
+
 def run_group(group: dict[str, Any], command: str, queue=None, threads: int | None = None, should_stop=None) -> str | None:
     """Run one group to completion (resuming if a checkpoint exists). Returns an error line or None.
 
-    ``should_stop`` (no arguments, called after every evaluation) ends the run early (tuning's pruner);
-    ``group["study"]``/``group["trial"]``, when present, fill the results' metadata columns."""
-    from algorithms.api import DemoSet
-    from harness.data import atomic_write_bytes, load_demos
-    from harness.envs import get_spec
-    from harness.protocol import RunSpec, train
-    from harness.registry import ALGORITHMS
-    from harness.results import RUN_FILE, update_status
+    Holds the run directories' locks while it trains: raises :class:`~harness.interrupts.RunLocked` if another
+    process holds one, and :class:`~harness.interrupts.RunInterrupted` after SIGINT/SIGTERM stopped it (statuses
+    ``interrupted``; the last checkpoint is the resume point). ``should_stop`` (no arguments, called after every
+    evaluation) ends the run early (tuning's pruner); ``group["study"]``/``group["trial"]``, when present, fill the
+    results' metadata columns."""
+    from harness.interrupts import RunInterrupted, in_group, remove_stale_temp, run_locks
+    from harness.protocol import RunSpec
+    from harness.results import update_status
 
     if threads:
         torch.set_num_threads(threads)
     spec = RunSpec(
         suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"], steps=group["steps"],
         eval_every=group["eval_every"], eval_episodes=group["eval_episodes"],
-        checkpoint_every=group["checkpoint_every"], device=group["device"], results=group["results"],
+        checkpoint_every=group["checkpoint_every"], log_every=group.get("log_every", 1000), device=group["device"],
+        results=group["results"],
         meta={"config_hash": group["config_hash"], "git_sha": git_sha(), "demo_source": group["demo_source"],
               "device": group["device"], "study": group.get("study"), "trial": group.get("trial")},
     )
     label = f"{group['env']}/{group['algo']} seeds={','.join(map(str, group['seeds']))}"
     dirs = spec.member_dirs()
+    queue = queue if queue is not None else _progress_queue
+
+    def say(msg: str) -> None:
+        if queue is not None:
+            queue.put(msg)
+        else:
+            print(msg, flush=True)
+
     try:
-        meta = {
-            **{k: group[k] for k in ("suite", "env", "algo", "steps", "eval_every", "eval_episodes", "device")},
-            "group_seeds": group["seeds"], "config": group["config"], "config_hash": group["config_hash"],
-            "demo_source": group["demo_source"], "command": command, "git_sha": spec.meta["git_sha"],
-            "versions": package_versions(), "python": sys.version.split()[0],
-        }
-        for d, s in zip(dirs, group["seeds"]):
-            atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
-        cls = ALGORITHMS[group.get("algo_class", group["algo"])]
-        demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
-        cfg = cls.Config.from_dict(group["config"])
-        algo = cls(get_spec(group["env"]), demos, cfg, group["seeds"], torch.device(group["device"]))
-
-        def on_progress(p):
-            msg = progress_line(label, p)
-            if queue is not None:
-                queue.put(msg)
-            else:
-                print(msg, flush=True)
-
-        train(spec, algo, on_progress, should_stop)
+        with run_locks(dirs, label), in_group():
+            remove_stale_temp([*dirs, spec.checkpoint_path().parent])
+            _train_group(group, spec, dirs, label, command, say, should_stop)
         return None
+    except KeyboardInterrupt:
+        for d in dirs:
+            _try_status(update_status, d, state="interrupted", steps_per_s=0.0, eta_s=math.inf)
+        raise RunInterrupted(label) from None
     except Exception as e:  # noqa: BLE001 - recorded per run, the suite goes on
+        from harness.interrupts import RunLocked
+
+        if isinstance(e, RunLocked):
+            raise
         err = f"{type(e).__name__}: {' '.join(str(e).split())}"
         for d in dirs:
-            update_status(d, state="failed", steps_per_s=0.0, eta_s=math.inf, error=err, traceback=traceback.format_exc())
+            _try_status(update_status, d, state="failed", steps_per_s=0.0, eta_s=math.inf, error=err,
+                        traceback=traceback.format_exc())
         return f"{label}: {err}"
+
+
+#: progress lines of a pool worker go to the parent through this queue (set by the pool's initializer)
+_progress_queue = None
+
+
+def _try_status(write, d: Path, **fields: Any) -> None:
+    """A status write that must not hide the error being reported (e.g. a read-only results directory)."""
+    try:
+        write(d, **fields)
+    except OSError:
+        pass
+
+
+def _train_group(group, spec, dirs, label, command, say, should_stop) -> None:
+    from algorithms.api import DemoSet
+    from harness.data import atomic_write_bytes, demos_fingerprint, load_demos
+    from harness.envs import get_spec
+    from harness.protocol import train
+    from harness.registry import ALGORITHMS
+    from harness.results import RUN_FILE
+
+    meta = {
+        **{k: group[k] for k in ("suite", "env", "algo", "steps", "eval_every", "eval_episodes", "device")},
+        "group_seeds": group["seeds"], "config": group["config"], "config_hash": group["config_hash"],
+        "demo_source": group["demo_source"], **demos_fingerprint(group["env"]), "command": command,
+        "git_sha": spec.meta["git_sha"], "versions": package_versions(), "python": sys.version.split()[0],
+    }
+    for d, s in zip(dirs, group["seeds"]):
+        atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
+    cls = ALGORITHMS[group.get("algo_class", group["algo"])]
+    demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
+    cfg = cls.Config.from_dict(group["config"])
+    algo = cls(get_spec(group["env"]), demos, cfg, group["seeds"], torch.device(group["device"]))
+
+    train(spec, algo, lambda p: say(progress_line(label, p)), should_stop)
 
 
 def _fmt_time(s: float) -> str:
@@ -355,6 +473,8 @@ def _fmt_time(s: float) -> str:
 
 
 def progress_line(label: str, p) -> str:
+    if p.resumed:
+        return f"[{label}] resuming from the checkpoint at step {p.step:,} of {p.total:,}"
     succ = ",".join("-" if not np.isfinite(x) else f"{x:.2f}" for x in p.success)
     pct = 100.0 * p.step / max(p.total, 1)
     return (f"[{label}] {p.step:,}/{p.total:,} ({pct:.0f}%)  {p.steps_per_s:,.0f} steps/s  "

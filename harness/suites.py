@@ -33,21 +33,23 @@ from algorithms.api import parse_int as _parse_int
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every",
-              "config", "members", "cells", "criterion"}
+              "log_every", "config", "members", "cells", "criterion"}
 
 
 class ConfigError(ValueError):
     """Bad suite/config input; reported as one line."""
 
 
-def parse_int(key: str, v: Any, minimum: int = 0) -> int:
-    """An integer setting (``300000``, ``3e5``, ``300_000``) of at least ``minimum``."""
+def parse_int(key: str, v: Any, minimum: int = 0, maximum: int | None = None) -> int:
+    """An integer setting (``300000``, ``3e5``, ``300_000``) in [``minimum``, ``maximum``]."""
     try:
         n = _parse_int(key, v)
-    except ValueError as e:
-        raise ConfigError(str(e)) from None
+    except (ValueError, OverflowError) as e:
+        raise ConfigError(str(e) if isinstance(e, ValueError) else f"{key} must be an integer, got {v!r}") from None
     if n < minimum:
         raise ConfigError(f"{key} must be >= {minimum}, got {v}")
+    if maximum is not None and n > maximum:
+        raise ConfigError(f"{key} must be <= {maximum:,}, got {v}")
     return n
 
 
@@ -55,24 +57,59 @@ def list_suites() -> list[str]:
     return sorted(p.stem for p in SUITES_DIR.glob("*.yaml"))
 
 
-def _read_yaml(path: Path) -> Any:
+class StrictLoader(yaml.SafeLoader):
+    """A safe YAML loader that refuses a mapping with a repeated key (YAML would silently keep the last)."""
+
+
+def _strict_mapping(loader: StrictLoader, node: yaml.MappingNode) -> dict:
+    loader.flatten_mapping(node)
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"key {key!r} appears twice", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=True)
+
+
+StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _strict_mapping)
+
+
+def read_yaml_text(text: str, where: str) -> Any:
+    """YAML from ``text`` (repeated keys are an error), errors as one line naming ``where`` and the position."""
     try:
-        return yaml.safe_load(path.read_text())
+        return yaml.load(text, Loader=StrictLoader)  # noqa: S506 - StrictLoader is a SafeLoader
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
-        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        pos = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
         problem = getattr(e, "problem", None) or type(e).__name__
-        raise ConfigError(f"malformed YAML in {path}{where}: {problem}") from None
+        raise ConfigError(f"malformed YAML in {where}{pos}: {problem}") from None
+
+
+def _read_yaml(path: Path) -> Any:
+    try:
+        return read_yaml_text(path.read_text(), str(path))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read {path}: {e.strerror if isinstance(e, OSError) else 'not UTF-8 text'}") from None
+
+
+def check_name(kind: str, name: str) -> str:
+    """A name that becomes a directory under results: letters, digits, '_' and '-', not starting with '-'."""
+    if not name or name[0] == "-" or not all(c.isascii() and (c.isalnum() or c in "_-") for c in name):
+        raise ConfigError(f"{kind} name {name!r} must be letters, digits, '_' and '-' (it names a results directory)")
+    return name
 
 
 def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
-    """(suite name, suite dict) from a name in ``suites/`` or a path to a YAML file."""
+    """(suite name, suite dict) from a name in ``suites/`` or a path to a YAML file; the name (the file's stem) must
+    be a plain identifier, since it names the directory under results."""
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
-        if not p.exists():
+        if not p.is_file():
             raise ConfigError(f"suite file not found: {p}")
-        path, name = p, p.stem
+        path, name = p, check_name("suite", p.stem)
     else:
+        check_name("suite", name_or_path)
         path, name = SUITES_DIR / f"{name_or_path}.yaml", name_or_path
         if not path.exists():
             raise ConfigError(f"unknown suite {name_or_path!r}; known suites: {', '.join(list_suites())}")
@@ -82,6 +119,14 @@ def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
     unknown = set(d) - SUITE_KEYS
     if unknown:
         raise ConfigError(f"unknown key(s) {sorted(unknown)} in suite {path}; known: {sorted(SUITE_KEYS)}")
+    cfg = d.get("config")
+    if cfg is not None:
+        if not isinstance(cfg, dict):
+            raise ConfigError(f"suite {path}: 'config' must map algorithm names (or 'all') to settings")
+        for scope, settings in cfg.items():
+            if not isinstance(settings, dict):
+                raise ConfigError(f"suite {path}: config for {scope!r} must be a mapping of keys to values, "
+                                  f"got {settings!r}")
     if "cells" in d and {"algos", "envs", "steps"} & set(d):
         raise ConfigError(f"suite {path} has 'cells': algorithms, envs and budgets belong in its cells, "
                           f"not in {sorted({'algos', 'envs', 'steps'} & set(d))}")

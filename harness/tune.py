@@ -42,11 +42,31 @@ import yaml
 
 from harness.suites import SUITES_DIR, ConfigError, parse_int
 
-TUNE_KEYS = {
-    "algo", "env", "trials", "storage", "study", "steps", "seeds", "workers", "pruner", "sampler", "seed",
-    "results", "backend", "ray_address", "search", "heartbeat_interval", "grace_period",
-    "eval_every", "eval_episodes", "checkpoint_every", "device",
+#: every key=value word of ``harness tune``: (default, meaning); ``harness tune --help`` prints this table
+TUNE_KEY_HELP: dict[str, tuple[str, str]] = {
+    "algo": ("-", "the algorithm to tune (its search space: suites/algorithms/<algo>_search.yaml)"),
+    "env": ("-", "the env"),
+    "trials": ("-", "finished trials (complete or pruned) the study should reach"),
+    "study": ("<algo>_<env>", "study name"),
+    "storage": ("<results>/tuning/<study>.journal", "journal file path or RDB URL (postgresql://..., sqlite:///...)"),
+    "steps": ("the env's default", "training steps per trial"),
+    "seeds": ("1", "seeds per trial (trained as members of one process)"),
+    "workers": ("1", "worker processes (or Ray tasks) on the same study"),
+    "pruner": ("median", "median, hyperband or none"),
+    "sampler": ("tpe", "tpe or random"),
+    "seed": ("none", "sampler seed"),
+    "results": ("results", "results directory"),
+    "backend": ("local", "local or ray"),
+    "ray_address": ("start one", "Ray cluster to join, with backend=ray"),
+    "search": ("suites/algorithms/<algo>_search.yaml", "search space file"),
+    "heartbeat_interval": ("60", "RDB storage: seconds between trial heartbeats"),
+    "grace_period": ("optuna's", "RDB storage: seconds before a silent trial counts as dead"),
+    "eval_every": ("10000", "steps between evaluations"),
+    "eval_episodes": ("10", "episodes per evaluation"),
+    "checkpoint_every": ("50000", "steps between checkpoints"),
+    "device": ("cpu", "torch device"),
 }
+TUNE_KEYS = set(TUNE_KEY_HELP)
 PASSED_TO_RUN = ("steps", "eval_every", "eval_episodes", "checkpoint_every", "device")
 PRUNERS = ("median", "hyperband", "none")
 SAMPLERS = ("tpe", "random")
@@ -337,6 +357,23 @@ def fail_dead_local_trials(study) -> list[int]:
     return out
 
 
+def retry_interrupted_trials(study) -> list[int]:
+    """Trials stopped by Ctrl-C / SIGTERM (FAILED with the ``interrupted`` mark) that have no retry yet: enqueue one
+    with the same parameters, which resumes in the interrupted trial's directory. Returns their numbers."""
+    from optuna.trial import TrialState
+
+    cls = _retry_callback()
+    retry = cls(MAX_RETRY, inherit_intermediate_values=True)
+    trials = study.get_trials(deepcopy=False)
+    retried = {cls.retried_trial_number(t) for t in trials} - {None}
+    out = []
+    for t in trials:
+        if t.state == TrialState.FAIL and t.user_attrs.get("interrupted") and t.number not in retried:
+            retry(study, study._storage.get_trial(t._trial_id))
+            out.append(t.number)
+    return out
+
+
 def trial_progress(dirs: list[Path]) -> tuple[int, float]:
     """(last evaluated step, mean deployed success so far averaged over seeds) from the parquet files."""
     import pandas as pd
@@ -397,7 +434,13 @@ def _objective(setup: dict[str, Any], threads: int | None):
 
         retried = f" (retry of trial {origin})" if origin is not None else ""
         print(f"[{setup['study']}] trial {trial.number}{retried}: {params}", flush=True)
-        err = run_group(group, setup["command"], None, threads, should_stop)
+        from harness.interrupts import RunInterrupted
+
+        try:
+            err = run_group(group, setup["command"], None, threads, should_stop)
+        except RunInterrupted:
+            trial.set_user_attr("interrupted", True)  # retried with its parameters when tuning resumes
+            raise
         if err:
             print(f"[{setup['study']}] trial {trial.number} failed: {err}", file=sys.stderr, flush=True)
             raise TrialRunError(err)
@@ -429,6 +472,8 @@ def tune_worker(setup: dict[str, Any], index: int, threads: int | None, env: dic
     study = open_study(setup, create=False)
     fail_dead_local_trials(study)
     optuna.storages.fail_stale_trials(study)
+    if index == 0:  # one worker re-queues the interrupted trials
+        retry_interrupted_trials(study)
     study = optuna.load_study(study_name=setup["study"], storage=study._storage,
                               sampler=make_sampler(setup, index, len(study.trials)), pruner=make_pruner(setup))
     remaining = setup["trials"] - finished(study)

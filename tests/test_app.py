@@ -151,3 +151,26 @@ def test_pages_on_100_runs_x_300_evals(monkeypatch, tmp_path):
         assert not at.exception, at.exception
     assert "100 runs with results" in " ".join(texts(at, "caption"))
     assert at.markdown  # the Table 1 tab drew its table
+
+
+def test_diagnostics_tab(monkeypatch, tmp_path):
+    """Training diagnostics (train.parquet) per run and metric, smoothed on request."""
+    from harness.results import TRAIN_FILE, RunResults, run_dir
+
+    root = F.write_fixture(tmp_path, corrupt=False, tuning=False, failed=False)
+    for seed in (0, 1):
+        d = run_dir(root, F.SUITE, "tabletop_manipulation", "medal", seed)
+        r = RunResults(d, {"suite": F.SUITE, "env": "tabletop_manipulation", "algo": "medal", "seed": seed},
+                       {"config_hash": "x", "members": 1}, TRAIN_FILE)
+        for step in range(1000, 11_000, 1000):
+            r.append(step, {"forward/critic_loss": step / 1000 + seed, "discriminator/accuracy": 0.5}, flush=False)
+        r.flush()
+    at = run_app(monkeypatch, tmp_path, "Diagnostics")
+    assert at.selectbox(key="diag_metric").value == "forward/critic_loss"
+    assert len(at.multiselect(key="diag_runs").value) == 2 and len(at.get("vega_lite_chart")) == 1
+    at.selectbox(key="diag_metric").set_value("discriminator/accuracy")
+    at.slider(key="diag_smooth").set_value(3)
+    at.run()
+    assert not at.exception and len(at.get("vega_lite_chart")) == 1
+    empty = run_app(monkeypatch, F.write_fixture(tmp_path / "none", corrupt=False, tuning=False), "Diagnostics")
+    assert any("No training diagnostics" in t for t in texts(empty, "info"))

@@ -177,13 +177,11 @@ def test_naive_cuts_pseudo_episodes_with_fresh_goals_and_never_resets(demos):
 
 
 def test_fbrl_members_are_independent(demos):
-    """E = 2 gives each member what an E = 1 run with its seed gives, across phases and masked updates. Member 0 is
-    bitwise equal; member 1 differs by float rounding (~1e-7) from the first actor forward pass on, a property of the
-    core's batched layers (its slice of the member-batched weights sits at another alignment), hence the tolerance."""
+    """E = 2 gives each member what an E = 1 run with its seed gives, across phases and masked updates, to float
+    rounding: a member-batched product may round differently from an E = 1 one (other shapes, alignments and, on
+    AVX-512 CPUs, kernels: ~1e-7 per step), hence a tolerance and no bitwise check across E."""
     kw = dict(seed_steps=100, batch_size=16, switch_every=25)
     both = rollout_actions(_make(FBRL, FBRLConfig, demos, (3, 5), **kw), ENV, (3, 5), 300)
     for i, s in enumerate((3, 5)):
         single = rollout_actions(_make(FBRL, FBRLConfig, demos, (s,), **kw), ENV, (s,), 300)
-        if i == 0:
-            np.testing.assert_array_equal(both[:, i], single[:, 0])
         np.testing.assert_allclose(both[:, i], single[:, 0], atol=1e-4)

@@ -136,8 +136,8 @@ def test_act_noise_per_member_matches_single_seed_runs():
     for _ in range(3):
         a = multi.act(obs, mask=mask)
         for i, single in enumerate(singles):
-            if mask[i]:
-                assert torch.equal(a[i], single.act(obs[i : i + 1])[0])
+            if mask[i]:  # same noise; the E = 3 and E = 1 products may round differently (other shapes)
+                torch.testing.assert_close(a[i], single.act(obs[i : i + 1])[0], atol=1e-6, rtol=0)
 
 
 def test_state_dict_round_trip_reproduces_updates():

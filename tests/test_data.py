@@ -38,10 +38,18 @@ def test_search_order(tmp_path, monkeypatch):
 def test_not_found_is_one_clear_line(tmp_path, monkeypatch):
     monkeypatch.setenv("HARNESS_CACHE_DIR", str(tmp_path / "none"))
     monkeypatch.setattr(data_mod, "PROJECT_ROOT", tmp_path / "proj")
+    monkeypatch.delenv("HARNESS_DATA_DIR", raising=False)
     with pytest.raises(DataNotFoundError) as e:
-        find_data_dir("demos", explicit=tmp_path / "missing")
+        find_data_dir("demos")
     msg = str(e.value)
-    assert "\n" not in msg and "missing" in msg and "harness data fetch" in msg and "HARNESS_DATA_DIR" in msg
+    assert "\n" not in msg and "harness data fetch" in msg and "HARNESS_DATA_DIR" in msg and "cache" in msg
+    # an explicit directory is the only place searched: no silent fallback to the others
+    for explicit in (tmp_path / "missing", tmp_path):
+        with pytest.raises(DataNotFoundError) as e:
+            find_data_dir("demos", explicit=explicit)
+        msg = str(e.value)
+        assert "\n" not in msg and str(explicit) in msg and "harness data fetch" in msg
+        assert ("does not exist" if explicit.name == "missing" else "has no 'demos'") in msg
 
 
 @requires_data

@@ -295,7 +295,7 @@ def test_vaprl_config_rejects_unknown_choices():
     from harness.runner import build_plan
     from harness.suites import ConfigError
 
-    with pytest.raises(ConfigError, match="relabel must be one of final, final_failed, future_demo, none"):
+    with pytest.raises(ConfigError, match="relabel=.banana. is not allowed: must be one of final, final_failed, future_demo, none"):
         build_plan(["algo=vaprl", f"env={ENV}", "vaprl.relabel=banana", "results=/nonexistent/x"])
 
 

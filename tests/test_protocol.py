@@ -14,7 +14,7 @@ import pytest
 from algorithms.api import AlgoConfig, Algorithm
 from harness.envs import get_spec, make_env
 from harness.protocol import RunSpec, evaluate, train
-from harness.results import load
+from harness.results import load, load_train
 
 from .conftest import requires_data
 
@@ -214,6 +214,11 @@ def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
     a, b = _comparable(load(tmp_path / "ref")), _comparable(load(tmp_path / "killed"))
     assert len(a) == len(b) == 13 * 4  # steps 0..1200 every 100, 4 deterministic metrics: no loss, no duplicate
     pd.testing.assert_frame_equal(a, b)
+    # the training diagnostics (train.parquet, every log_every = 100 steps) resume exactly too
+    ta, tb = (_comparable(load_train(tmp_path / w)) for w in ("ref", "killed"))
+    assert sorted(set(ta["step"])) == list(range(100, 1201, 100))
+    assert {"forward/critic_loss", "backward/batch_reward", "discriminator/accuracy", "phase/backward"} <= set(ta.metric)
+    pd.testing.assert_frame_equal(ta, tb)
 
 
 def test_results_are_joinable_with_published_curves(tmp_path):

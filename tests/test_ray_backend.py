@@ -1,6 +1,7 @@
 """`harness run backend=ray`: the same deterministic rows as the local backend, a task whose worker
 is SIGKILLed is retried and resumes from its checkpoint, Ctrl-C exits 130, bad backends exit 2."""
 
+import json
 import os
 import signal
 import subprocess
@@ -70,7 +71,8 @@ def test_killed_ray_task_is_retried_and_resumes(local_ray, tmp_path, monkeypatch
 
 @requires_data
 def test_ctrl_c_cancels_and_exits_130(tmp_path):
-    p = subprocess.Popen([sys.executable, "-m", "harness.cli", "run", *SMALL, "steps=100000", "backend=ray",
+    words = ["steps=100000" if w.startswith("steps=") else w for w in SMALL]
+    p = subprocess.Popen([sys.executable, "-m", "harness.cli", "run", *words, "backend=ray",
                           f"results={tmp_path}"], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.time() + 120
     while not list(tmp_path.rglob("evals.parquet")) and time.time() < deadline:
@@ -79,4 +81,6 @@ def test_ctrl_c_cancels_and_exits_130(tmp_path):
     p.send_signal(signal.SIGINT)
     out, _ = p.communicate(timeout=60)
     assert p.returncode == 130, out
-    assert "cancelling 1 Ray task" in out
+    assert "cancelling 1 Ray task" in out and "run the same command again to resume" in out
+    status = json.loads(next(tmp_path.rglob("status.json")).read_text())
+    assert status["state"] == "interrupted"

@@ -99,7 +99,7 @@ def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
     ("[{algo: nope, env: tabletop_manipulation, steps: 10}]", "unknown algorithm(s) ['nope']"),
     ("[{algo: medal, env: tabletop_manipulation, steps: 10}, {algo: medal, env: tabletop_manipulation, steps: 20}]",
      "two cells run 'medal' on 'tabletop_manipulation'"),
-    ("[{algo: medal, name: 'a b', env: tabletop_manipulation, steps: 10}]", "name must be letters"),
+    ("[{algo: medal, name: 'a b', env: tabletop_manipulation, steps: 10}]", "must be letters, digits"),
     ("[{algo: medal, env: tabletop_manipulation, steps: 10, config: {nope: 1}}]", "unknown config key(s) ['nope']"),
     ("[]", "non-empty list"),
 ])

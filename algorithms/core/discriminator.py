@@ -80,12 +80,18 @@ class Discriminator:
         return x, y
 
     def update(self, pos: torch.Tensor, neg: torch.Tensor, mask=None) -> dict[str, torch.Tensor]:
-        """One Adam step on BCE(mixup(pos (E,400,d), neg (E,400,d))) for members in ``mask``; per-member metrics."""
+        """One Adam step on BCE(mixup(pos (E,400,d), neg (E,400,d))) for members in ``mask``; per-member metrics:
+        the loss, and (before the step, on the unmixed batch) the mean C on positives and on negatives and the
+        balanced accuracy of C > 0.5."""
+        with torch.no_grad():
+            c_pos, c_neg = torch.sigmoid(self.logits(pos)), torch.sigmoid(self.logits(neg))
         x, y = self.mix(pos, neg, mask)
         loss = F.binary_cross_entropy_with_logits(self.logits(x), y, reduction="none").mean(dim=1)  # (E,)
         grads = torch.autograd.grad(loss.sum(), self.opt.params)
         self.opt.step(mask, grads)
-        return {"discriminator_loss": loss.detach()}
+        accuracy = 0.5 * ((c_pos > 0.5).float().mean(1) + (c_neg <= 0.5).float().mean(1))
+        return {"discriminator_loss": loss.detach(), "c_positives": c_pos.mean(1), "c_negatives": c_neg.mean(1),
+                "accuracy": accuracy}
 
     def state_dict(self) -> dict:
         return {"net": self.net.state_dict(), "opt": self.opt.state_dict(),

@@ -16,6 +16,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from algorithms.api import setting
+
 from . import manual
 from .nets import (
     MemberMLP,
@@ -36,19 +38,20 @@ HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 class SACConfig:
     """Defaults = MEDAL reference values (ALGORITHMS.md §3.3)."""
 
-    lr: float = 3e-4
-    batch_size: int = 256
-    gamma: float = 0.99
-    tau: float = 0.005
-    reward_scale: float = 10.0
-    init_temperature: float = 1.0
-    target_entropy_scale: float = 0.5  # target entropy = -scale * |A|
-    log_std_min: float = -20.0
-    log_std_max: float = 2.0  # RISC uses 10 (§14.2)
-    feature_dim: int = 50
-    hidden_dim: int = 256
-    use_trunk: bool = True  # Linear -> LayerNorm -> Tanh feature layer before the MLPs (§3.1)
-    bootstrap_on_truncation: bool = False  # False: [MC]-faithful (truncation masks the bootstrap); True: RISC (§2.3)
+    lr: float = setting(3e-4, "Adam learning rate of actor, critic and temperature", gt=0, le=1)
+    batch_size: int = setting(256, "transitions per SAC update", ge=1, le=65_536)
+    gamma: float = setting(0.99, "discount", ge=0, lt=1)
+    tau: float = setting(0.005, "Polyak rate of the target critic", gt=0, le=1)
+    reward_scale: float = setting(10.0, "reward multiplier inside the critic target", gt=0, le=1e6)
+    init_temperature: float = setting(1.0, "initial entropy temperature alpha", gt=0, le=1e6)
+    target_entropy_scale: float = setting(0.5, "target entropy = -scale * |A|", ge=0, le=100)
+    log_std_min: float = setting(-20.0, "lower clamp of the policy's log sigma", ge=-100, le=0)
+    log_std_max: float = setting(2.0, "upper clamp of the policy's log sigma (RISC: 10)", ge=-10, le=100)
+    feature_dim: int = setting(50, "width of the Linear-LayerNorm-Tanh trunk", ge=1, le=65_536)
+    hidden_dim: int = setting(256, "width of the two hidden layers of actor and critic", ge=1, le=65_536)
+    use_trunk: bool = setting(True, "Linear -> LayerNorm -> Tanh feature layer before the MLPs (3.1)")
+    bootstrap_on_truncation: bool = setting(False, "bootstrap through time-outs and switches (RISC's TAB); "
+                                                   "False: they end bootstrapping as terminals do (MEDAL code)")
 
 
 def squashed_gaussian_log_prob(u: torch.Tensor, eps: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
@@ -240,6 +243,7 @@ class SAC:
             "q1": q[:, 0].mean(dim=1),
             "target_q": target_q.mean(dim=1),
             "log_prob": fresh_log_prob.mean(dim=1),
+            "entropy": -fresh_log_prob.mean(dim=1),
             "batch_reward": reward.mean(dim=1),
         }
 

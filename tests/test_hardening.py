@@ -1,0 +1,306 @@
+"""What a user can do wrong, and what the machine can do to a run: malformed command lines and suite files (a
+property-based fuzz test), Ctrl-C with several workers, two processes on one run, broken result stores, an explicit
+data directory, and --help.
+
+Every bad input must give exit code 2, exactly one line on stderr, no traceback, and nothing written."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+from harness.cli import main
+from harness.registry import ALGORITHMS
+from harness.results import load, read_status
+
+from .conftest import requires_data
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
+TINY = ["all.seed_steps=100", "all.batch_size=16", "eval_episodes=1"]
+FUZZ = {"tried": 0}
+
+
+def one_error_line(capsys, argv: list[str], results: Path) -> str:
+    """Run the CLI in-process with ``argv``; assert the bad-input contract and return the error line."""
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2, (argv, out, err)
+    assert len(lines) == 1 and lines[0].startswith("harness: error: "), (argv, err)
+    assert "Traceback" not in out + err
+    assert not results.exists() or not any(results.rglob("*")), (argv, sorted(results.rglob("*")))
+    FUZZ["tried"] += 1
+    return lines[0]
+
+
+# -- fuzzing: values that break a declared rule of some algorithm setting ------------------------------------------
+def _bad_values(cls, key: str, default) -> list[str]:
+    from algorithms.api import declaration
+
+    d = declaration(cls, key)
+    if isinstance(default, bool):
+        return ["maybe", "2", "", "tru"]
+    if isinstance(default, int):
+        out = ["x", "1.5", "", "1e400", "9" * 40]
+        out += [str(d["ge"] - 1)] if d.get("ge") is not None else []
+        out += [str(int(d["le"]) + 1)] if d.get("le") is not None else []
+        return out
+    if isinstance(default, float):
+        out = ["nan", "abc", "", "1e400" if not math.isinf(default) else "nan"]
+        out += [str(d["ge"] - 1.0)] if d.get("ge") is not None else []
+        out += [str(d["gt"])] if d.get("gt") is not None else []
+        out += [str(d["le"] * 2 + 1)] if d.get("le") is not None else []
+        out += [str(d["lt"])] if d.get("lt") is not None else []
+        return out
+    if isinstance(default, str):
+        return ["banana", "", default.upper() + "_"] if d.get("choices") else []
+    return []
+
+
+BAD_SETTINGS = sorted({(name, key, v) for name, cls in ALGORITHMS.items() for key, default, _ in cls.Config.describe()
+                       for v in _bad_values(cls.Config, key, default)})
+BAD_RUN_WORDS = [
+    ["steps=0"], ["steps=-5"], ["steps=1e20"], ["steps=" + "9" * 32], ["steps=abc"], ["steps=1.5"],
+    ["seeds=0"], ["seeds=100000000"], ["seeds=1,1"], ["seeds=a,b"], ["seeds=1,99999999999"],
+    ["members=0"], ["members=5000"], ["eval_every=0"], ["eval_episodes=0"], ["eval_episodes=1e9"],
+    ["checkpoint_every=300", "eval_every=200"], ["workers=0"], ["workers=1e6"], ["device=tpu9"],
+    ["backend=mpi"], ["ray_address=auto"], ["colour=red"], ["steps=100", "steps=200"], ["naive.lr=0.1"],
+    ["nope.lr=1"], ["all.nope=1"], ["justaword"], ["=5"], ["algo=medal,medal"], ["env=sawyer_door,sawyer_door"],
+    ["env=kitchen"], ["suite=../../etc/evil"], ["suite=/nonexistent/suite.yaml"], ["algo=naive", "algos=medal"],
+]
+
+
+@requires_data
+@settings(max_examples=150, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(case=st.sampled_from(BAD_SETTINGS), extra=st.sampled_from([[], ["seeds=2"], ["members=2", "seeds=2"]]))
+def test_fuzz_bad_algorithm_settings(capsys, tmp_path_factory, case, extra):
+    algo, key, value = case
+    res = tmp_path_factory.mktemp("r") / "results"
+    line = one_error_line(capsys, ["run", f"algo={algo}", "env=sawyer_door", f"{algo}.{key}={value}", *extra,
+                                   f"results={res}", "--dry-run"], res)
+    assert key in line
+
+
+@requires_data
+@settings(max_examples=120, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(words=st.sampled_from(BAD_RUN_WORDS), flag_first=st.booleans())
+def test_fuzz_bad_run_words(capsys, tmp_path_factory, words, flag_first):
+    res = tmp_path_factory.mktemp("r") / "results"
+    base = ["algo=medal", "env=sawyer_door"] if not any(w.startswith(("algo", "env", "suite")) for w in words) \
+        else (["env=sawyer_door"] if any(w.startswith("algo") for w in words) else
+              ["algo=medal"] if any(w.startswith("env") for w in words) else [])
+    argv = ["run", "--dry-run", *base, *words, f"results={res}"] if flag_first else \
+        ["run", *base, *words, f"results={res}", "--dry-run"]
+    one_error_line(capsys, argv, res)
+
+
+BAD_SUITES = [
+    "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: 5}\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: [1, 2]}\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nconfig: 7\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nsteps: 10\nsteps: 20\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: {lr: 1, lr: 2}}\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: {lr: banana}}\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: {reward_form: 3}}\n",
+    "algos: [medal]\nenvs: [sawyer_door]\ncolour: red\n",
+    "algos: [medal\n",
+    "- a\n- b\n",
+    "",
+    "algos: [medal]\nenvs: [sawyer_door]\nseeds: -1\n",
+    "algos: [medal, medal]\nenvs: [sawyer_door]\n",
+    "algos: [medal]\nenvs: [sawyer_door]\nsteps: {tabletop_manipulation: 10}\n",
+    "cells: 5\n",
+    "cells: [{algo: medal, env: sawyer_door}]\n",
+    "cells: [{algo: medal, env: sawyer_door, steps: 10, seeds: 0}]\n",
+    "algos: [medal]\ncells: [{algo: medal, env: sawyer_door, steps: 10}]\n",
+    "\x00\x01binary",
+]
+
+
+@requires_data
+@settings(max_examples=60, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(text=st.sampled_from(BAD_SUITES), name=st.sampled_from(["bad", "bad_suite-2"]))
+def test_fuzz_bad_suite_files(capsys, tmp_path_factory, text, name):
+    d = tmp_path_factory.mktemp("s")
+    (d / f"{name}.yaml").write_text(text)
+    res = d / "results"
+    one_error_line(capsys, ["run", f"suite={d / f'{name}.yaml'}", f"results={res}", "--dry-run"], res)
+
+
+def test_zz_fuzz_count():
+    """How many malformed inputs the fuzz tests above tried (all gave a clean error), for the closing note."""
+    print(f"\nfuzz: {FUZZ['tried']} malformed inputs, each exit 2 with one line and nothing written")
+    assert FUZZ["tried"] == 0 or FUZZ["tried"] >= 100
+
+
+# -- two processes, one run ------------------------------------------------------------------------------------
+def _start(args: list[str]) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "harness.cli", *args], env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+
+
+def _wait_for(pred, timeout: float = 300.0) -> None:
+    t = time.time()
+    while not pred():
+        assert time.time() - t < timeout, "timed out"
+        time.sleep(0.2)
+
+
+def _state(path: Path) -> str | None:
+    return (read_status(path) or {}).get("state")
+
+
+@requires_data
+def test_second_process_on_a_running_group_exits_2_naming_the_first(tmp_path):
+    run = ["run", "algo=naive", "env=tabletop_manipulation", "steps=100000", "eval_every=200",
+           "checkpoint_every=200", *TINY, f"results={tmp_path}"]
+    first = _start(run)
+    d = tmp_path / "adhoc" / "tabletop_manipulation" / "naive" / "seed=0"
+    try:
+        _wait_for(lambda: _state(d) in ("running", "resumed"))
+        second = subprocess.run([sys.executable, "-m", "harness.cli", *run], env=ENV, capture_output=True,
+                                text=True, timeout=300)
+        assert second.returncode == 2, second.stdout + second.stderr
+        err = [ln for ln in second.stderr.splitlines() if ln.strip()]
+        assert len(err) == 1 and f"being trained by process {first.pid}" in err[0], second.stderr
+        assert "Traceback" not in second.stdout + second.stderr
+        # in a suite of two groups the held one is skipped and the other runs
+        both = subprocess.run([sys.executable, "-m", "harness.cli", "run", "algo=naive,oracle",
+                               "env=tabletop_manipulation", "steps=200", "eval_every=200", *TINY,
+                               f"results={tmp_path}", "workers=1"], env=ENV, capture_output=True, text=True,
+                              timeout=600)
+        assert "harness: skipping" in both.stderr and f"process {first.pid}" in both.stderr
+        assert _state(tmp_path / "adhoc" / "tabletop_manipulation" / "oracle" / "seed=0") == "done"
+    finally:
+        first.kill()
+        first.wait()
+    # kill -9 leaves no stale lock: the next process takes the run over
+    again = _start(["steps=400" if w.startswith("steps=") else w for w in run])
+    assert again.wait(timeout=600) == 0, again.stdout.read()
+
+
+# -- Ctrl-C ----------------------------------------------------------------------------------------------------
+@requires_data
+def test_sigint_with_two_workers_stops_marks_interrupted_and_resumes_to_the_same_rows(tmp_path):
+    words = ["algo=naive", "env=tabletop_manipulation", "seeds=2", "workers=2", "steps=1200", "eval_every=200",
+             "checkpoint_every=200", *TINY]
+    p = _start(["run", *words, f"results={tmp_path / 'a'}"])
+    dirs = [tmp_path / "a" / "adhoc" / "tabletop_manipulation" / "naive" / f"seed={s}" for s in (0, 1)]
+    _wait_for(lambda: all((read_status(d) or {}).get("step", 0) >= 400 for d in dirs))
+    assert p.poll() is None, "the run finished before it could be interrupted"
+    t = time.time()
+    p.send_signal(signal.SIGINT)
+    out, _ = p.communicate(timeout=60)
+    assert p.returncode == 130, out
+    assert time.time() - t < 30
+    assert "Traceback" not in out and "Error" not in out.replace("harness: interrupted", "")
+    assert "run the same command again to resume" in out
+    assert {_state(d) for d in dirs} == {"interrupted"}
+    again = subprocess.run([sys.executable, "-m", "harness.cli", "run", *words, f"results={tmp_path / 'a'}"],
+                           env=ENV, capture_output=True, text=True, timeout=900)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "resuming from the checkpoint at step" in again.stdout
+    ref = subprocess.run([sys.executable, "-m", "harness.cli", "run", *words, f"results={tmp_path / 'b'}"],
+                         env=ENV, capture_output=True, text=True, timeout=900)
+    assert ref.returncode == 0, ref.stdout + ref.stderr
+    deterministic = ["deployed_success", "deployed_return", "continuing_reward", "interventions"]
+
+    def rows(root):
+        df = load(root)
+        return df[df.metric.isin(deterministic)].sort_values(["seed", "step", "metric"])[
+            ["seed", "step", "metric", "value"]].reset_index(drop=True)
+
+    a, b = rows(tmp_path / "a"), rows(tmp_path / "b")
+    assert len(a) == 2 * 7 * 4  # steps 0..1200 every 200, 4 metrics, 2 seeds: nothing lost or duplicated
+    assert a.equals(b)
+
+
+# -- broken result stores ------------------------------------------------------------------------------------------
+@requires_data
+def test_corrupt_checkpoint_stale_temp_files_and_strict_status_json(tmp_path, capsys):
+    words = ["run", "algo=naive", "env=tabletop_manipulation", "steps=400", "eval_every=200", "checkpoint_every=200",
+             *TINY, f"results={tmp_path}", "workers=1"]
+    assert main(["steps=200" if w.startswith("steps=") else w for w in words]) == 0
+    d = tmp_path / "adhoc" / "tabletop_manipulation" / "naive" / "seed=0"
+    ckpt = next((tmp_path / "adhoc" / "tabletop_manipulation" / "naive" / "checkpoints").rglob("checkpoint.pt"))
+    stale = [ckpt.parent / ".ckpt.abc123.tmp", d / ".evals.parquet.xyz.tmp"]
+    for s in stale:
+        s.write_bytes(b"")
+    good = ckpt.read_bytes()
+    ckpt.write_bytes(good[: len(good) // 3])  # truncated by a full disk, say
+    capsys.readouterr()
+    assert main(words) == 1
+    err = capsys.readouterr().err
+    assert f"checkpoint {ckpt} is unreadable" in err and "delete it to restart" in err and "Traceback" not in err
+    assert not any(s.exists() for s in stale)  # removed when the run started
+    status = (d / "status.json").read_text()
+    assert json.loads(status, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))["state"] == "failed"
+    ckpt.write_bytes(good)
+    assert main(words) == 0 and _state(d) == "done"
+    rec = yaml.safe_load((d / "run.yaml").read_text())
+    assert rec["demos_sha256"] and Path(rec["data_dir"]).is_dir()
+
+
+@requires_data
+@pytest.mark.parametrize("content, says", [("- a\n", "a YAML list, not a run record"), ("", "is empty"),
+                                            ("a: [\n", "malformed YAML in")])
+def test_broken_run_yaml_is_one_line_naming_the_file(tmp_path, capsys, content, says):
+    words = ["run", "algo=naive", "env=tabletop_manipulation", "steps=200", "eval_every=200", *TINY,
+             f"results={tmp_path}", "workers=1"]
+    assert main(words) == 0
+    f = tmp_path / "adhoc" / "tabletop_manipulation" / "naive" / "seed=0" / "run.yaml"
+    f.write_text(content)
+    capsys.readouterr()
+    assert main(words + ["--dry-run"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(f) in err[0] and says in err[0] and "delete it" in err[0]
+
+
+def test_unwritable_results_directory_is_an_input_error(tmp_path, capsys, monkeypatch):
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(tmp_path) else real(p, mode))
+    res = tmp_path / "results"
+    line = one_error_line(capsys, ["run", "algo=naive", "env=sawyer_door", f"results={res}"], res)
+    assert f"results directory {tmp_path} is not writable" in line
+
+
+# -- the data directory ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("kind", ["missing", "empty"])
+def test_explicit_data_dir_is_honoured(tmp_path, capsys, kind):
+    d = tmp_path / "data"
+    if kind == "empty":
+        d.mkdir()
+    res = tmp_path / "results"
+    line = one_error_line(capsys, ["--data-dir", str(d), "run", "algo=naive", "env=sawyer_door", f"results={res}"],
+                          res)
+    assert str(d) in line and ("does not exist" if kind == "missing" else "has no 'demos/sawyer_door/forward.npz'") in line
+
+
+# -- help -------------------------------------------------------------------------------------------------------------
+def test_help_lists_every_key_with_default(capsys):
+    from harness.runner import RUN_KEYS
+    from harness.tune import TUNE_KEY_HELP
+
+    for cmd, keys in (("run", RUN_KEYS), ("tune", TUNE_KEY_HELP)):
+        with pytest.raises(SystemExit):
+            main([cmd, "--help"])
+        out = capsys.readouterr().out
+        for k in keys:
+            assert f"\n  {k} " in out
+        assert "[default: 10000]" in out and "medal:" in out and "disc_lr" in out and "reward_form" in out
