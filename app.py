@@ -156,16 +156,12 @@ def aggregates_for(root, sig, sel: Sel, step, last_k, reps) -> pd.DataFrame:
 # charts
 
 
-TAB10 = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf"]
 
 
 def palette(methods: list[str]) -> list[str]:
-    """The report's colours (tab10 in the paper's method order), so app and figures agree."""
-    known = list(A.ALGO_ORDER) + [a for a in A.ALGO_LABELS if a not in A.ALGO_ORDER]
-    labels = [A.algo_label(a) for a in known]
-    rest = sorted(m for m in methods if m not in labels)
-    order = labels + rest
-    return [TAB10[order.index(m) % 10] for m in methods]
+    """The report's fixed colour of each method label (harness.analysis.METHOD_COLORS), so app and figures agree."""
+    by_label = {A.algo_label(a): a for a in A.METHOD_COLORS}
+    return [A.method_color(by_label.get(m, m)) for m in methods]
 
 
 def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str, band: str,

@@ -65,8 +65,30 @@ ALGO_LABELS = {
     "gail_oracle": "oracle GAIL",
     "risc": "RISC",
     "risc_no_tab": "RISC w/o TAB",
+    "risc_no_timeout_bootstrap": "RISC w/o TAB",  # the RISC paper's name of the same ablation
+    "risc_no_switching": "RISC w/o switching",
     "vaprl_risc": "VaPRL (RISC's re-implementation)",
 }
+
+#: One fixed colour per method, shared by `harness report` and the dashboard: the 8 Okabe-Ito colours and 7 of
+#: Paul Tol's "muted" ones (both chosen to stay apart under the common colour-vision deficiencies), 15 in all, so
+#: no two registered methods (nor the published-only RISC ablations) share one.
+METHOD_COLORS: dict[str, str] = {
+    "naive": "#000000", "fbrl": "#E69F00", "r3l": "#56B4E9", "vaprl": "#009E73", "medal": "#D55E00",
+    "oracle": "#0072B2", "medal_logc": "#CC79A7", "fbrl_vice": "#F0E442", "bc": "#882255", "gail_naive": "#117733",
+    "gail_oracle": "#332288", "risc": "#AA4499", "risc_no_tab": "#DDCC77", "vaprl_risc": "#44AA99",
+    "risc_no_switching": "#88CCEE", "risc_no_timeout_bootstrap": "#DDCC77",  # the published name of risc_no_tab
+}
+#: for names outside the table (a suite's variants): a deterministic pick from these, by name
+EXTRA_COLORS = ("#999933", "#CC6677", "#6699CC", "#997700", "#EE99AA", "#004488", "#994455", "#666666")
+
+
+def method_color(name: str) -> str:
+    """The fixed colour of method ``name`` (a registered algorithm, a published method, or a variant)."""
+    import zlib
+
+    return METHOD_COLORS.get(name) or EXTRA_COLORS[zlib.crc32(name.encode()) % len(EXTRA_COLORS)]
+
 
 #: Table 1 of the MEDAL paper (Sharma, Ahmad, Finn, ICML 2022), as transcribed in
 #: shared/ALGORITHMS.md section 15: deployed performance of the final policy, mean (standard

@@ -50,14 +50,9 @@ def parse(overrides: list[str]) -> dict[str, str]:
     return out
 
 
-def algo_colors(algos) -> dict[str, tuple]:
-    """A fixed colour per method (paper order first), shared by every subplot."""
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10"]
-    known = list(A.ALGO_ORDER) + [a for a in A.ALGO_LABELS if a not in A.ALGO_ORDER]
-    rest = sorted(a for a in algos if a not in known)
-    return {a: cmap(i % 10) for i, a in enumerate(known + rest)}
+def algo_colors(algos) -> dict[str, str]:
+    """The fixed colour of each method (:data:`harness.analysis.METHOD_COLORS`, the dashboard's too)."""
+    return {a: A.method_color(a) for a in algos}
 
 
 def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: str = "deployed_success"):

@@ -60,6 +60,8 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "results": ("results", "results directory"),
     "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
+    "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
+                          "(seconds each, cached) for the time estimate"),
 }
 #: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
 MAX_STEPS, MAX_SEEDS, MAX_SEED, MAX_MEMBERS, MAX_EPISODES, MAX_WORKERS = 10**9, 1000, 2**31 - 1, 1024, 10_000, 1024
@@ -311,6 +313,10 @@ def build_plan(words: list[str]) -> Plan:
     workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1, MAX_WORKERS)
     plan.workers = min(workers, max(len(plan.groups), 1))
     plan.backend, plan.ray_address = backend, ov.get("ray_address")  # read by harness.backends.run_plan
+    calibrate = ov.get("calibrate", "true").lower()
+    if calibrate not in ("true", "false"):
+        raise ConfigError(f"calibrate must be true or false, got {ov['calibrate']!r}")
+    plan.calibrate = calibrate == "true"
     _check_results_dirs(plan)
     return plan
 
@@ -499,25 +505,41 @@ def steps_done(group: dict[str, Any]) -> int:
     return done
 
 
-def print_plan(plan: Plan) -> None:
+def print_plan(plan: Plan, calibrate: bool = False) -> None:
+    """The plan, and its time on this machine from measured speeds (``calibrate``: measure what is not cached yet,
+    a few seconds per kind of group; see :mod:`harness.calibration`)."""
+    from harness import calibration
+
     steps = sum(g["steps"] * len(g["seeds"]) for g in plan.groups)
-    left = steps - sum(steps_done(g) for g in plan.groups)
+    done = [steps_done(g) for g in plan.groups]
+    left = steps - sum(done)
     print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g['seeds']) for g in plan.groups)} run(s), "
           f"{steps:,} env steps in all" + (f" ({left:,} left to run; the rest is done or checkpointed)" if left < steps else "")
           + f", {plan.workers} worker(s)")
-    for g in plan.groups:
+    threads = calibration.worker_threads(plan.workers)
+    todo = [g for g, d in zip(plan.groups, done) if d < g["steps"] * len(g["seeds"])]
+    rates = dict(zip(map(id, todo), calibration.rates(todo, threads, calibrate)))
+    for g, d in zip(plan.groups, done):
+        r = rates.get(id(g))
+        speed = f"  {r:,.1f} steps/s per seed" if r else ""
         print(f"  {g['env']:<22} {g['algo']:<12} seeds={','.join(map(str, g['seeds'])):<10} steps={g['steps']:,} "
-              f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}")
-    rate = 55.0  # MEDAL steps/s per run with one 2-core CPU per worker (harness bench train: 59; GPU: faster)
-    est = left / rate / max(plan.workers, 1)
-    print(f"estimated time at ~{rate:.0f} steps/s per run (2-core CPU, measured): {_fmt_time(est)}")
+              f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}{speed}")
+    if any(rates.get(id(g)) is None for g in todo):
+        print("estimated time: not measured yet on this machine; `harness run ... --dry-run` measures each kind of "
+              "group for a few seconds (cached)")
+        return
+    work = [((g["steps"] * len(g["seeds"]) - d) // len(g["seeds"]), rates[id(g)])
+            for g, d in zip(plan.groups, done) if id(g) in rates]
+    est = calibration.estimate(work, plan.workers)
+    print(f"estimated time: {_fmt_time(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
+          f"on this machine (evaluations add ~3%; other load on the machine slows it)")
 
 
 def run_cli(words: list[str], dry_run: bool = False) -> int:
     plan = build_plan(words)
     for a in plan.unregistered:
         print(f"harness: note: algorithm {a!r} of suite {plan.suite!r} is not registered yet; skipping it", file=sys.stderr)
-    print_plan(plan)
+    print_plan(plan, calibrate=dry_run and plan.calibrate)
     if dry_run or not plan.groups:
         return 0
     command = " ".join(["harness", "run", *map(shlex.quote, words)])

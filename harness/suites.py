@@ -184,6 +184,7 @@ class Plan:
     groups: list[dict[str, Any]] = field(default_factory=list)
     unregistered: list[str] = field(default_factory=list)
     workers: int = 1
+    calibrate: bool = True  # --dry-run measures the speed of groups not measured yet (harness.calibration)
 
 
 def as_plain(cfg) -> dict[str, Any]:

@@ -232,3 +232,16 @@ def test_published_overlay_keeps_only_our_env_algo_pairs():
     kept = A.same_pairs(pub, ours)
     assert sorted(zip(kept.env, kept.algo)) == [("door", "oracle"), ("table", "risc")]
     assert A.same_pairs(pub.iloc[:0], ours).empty
+
+
+def test_every_method_has_its_own_fixed_colour_in_report_and_dashboard():
+    """13+ methods, one colour each, the same in `harness report` and app.py (the published RISC ablation shares
+    risc_no_tab's colour: it is the same method); variants get a stable colour by name."""
+    from harness.registry import ALGORITHMS
+    from harness.report import algo_colors
+
+    names = list(ALGORITHMS) + ["risc_no_switching"]
+    colors = algo_colors(names)
+    assert len(set(colors.values())) == len(names) >= 15
+    assert A.method_color("risc_no_timeout_bootstrap") == colors["risc_no_tab"]
+    assert A.method_color("vaprl_risc_no_tab") == A.method_color("vaprl_risc_no_tab")  # stable for variants

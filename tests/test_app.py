@@ -4,6 +4,7 @@ check on 100 runs x 300 evaluations."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -69,6 +70,8 @@ def test_learning_curves_tab(monkeypatch, results):
     c = at.dataframe[0].value
     assert c["ci_lo"].notna().all() and (c["step"] > 0).all()
     assert len(at.get("vega_lite_chart")) == 2
+    spec = json.loads(at.get("vega_lite_chart")[0].proto.spec)  # the report's fixed colours (harness.analysis)
+    assert all(A.method_color(a) in json.dumps(spec) for a in F.ALGOS)
 
 
 def test_table1_tab(monkeypatch, results):

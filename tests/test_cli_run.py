@@ -83,10 +83,32 @@ def test_resume_after_sigkill(algo, tmp_path):
 
 
 def test_dry_run_prints_plan(tmp_path, capsys):
-    assert main(["run", "suite=earl_sparse", f"results={tmp_path}", "--dry-run"]) == 0
+    assert main(["run", "suite=earl_sparse", f"results={tmp_path}", "--dry-run", "calibrate=false"]) == 0
     out = capsys.readouterr()
-    assert "estimated time" in out.out and "sawyer_peg" in out.out
+    assert "estimated time: not measured yet on this machine" in out.out and "sawyer_peg" in out.out
     assert not list(tmp_path.iterdir())
+
+
+@requires_data
+def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypatch):
+    """--dry-run measures each kind of group once (cached per machine, threads and config) and packs the groups
+    onto the workers longest first."""
+    from harness import calibration
+
+    monkeypatch.setenv("HARNESS_CACHE_DIR", str(tmp_path / "cache"))
+    args = ["run", "algo=naive,oracle", "env=tabletop_manipulation", "seeds=2", "steps=5000", "workers=2",
+            "all.batch_size=16", f"results={tmp_path / 'r'}", "--dry-run"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert out.count("calibrating") == 2 and "steps/s per seed" in out and "estimated time:" in out
+    cache = calibration.read_cache()
+    assert len(cache) == 2 and all(v > 0 for v in cache.values())
+    assert main(args) == 0
+    assert "calibrating" not in capsys.readouterr().out  # cached
+    assert not (tmp_path / "r").exists()
+    # longest first onto the least loaded worker: 3 jobs of 100 s, 60 s, 50 s on 2 workers -> 110 s
+    assert calibration.estimate([(1000, 10.0), (600, 10.0), (500, 10.0)], 2) == pytest.approx(110.0)
+    assert calibration.estimate([(1000, 10.0), (0, 1.0)], 1) == pytest.approx(100.0)
 
 
 def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
@@ -99,7 +121,7 @@ def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
     write_status(run_dir(*where, 0), state="done", step=1000)
     write_status(run_dir(*where, 1), state="running", step=650)
     args = ["run", "algo=medal", "env=sawyer_door", "seeds=2", "steps=1000", "eval_every=100",
-            "checkpoint_every=200", "members=2", "workers=1", f"results={tmp_path}", "--dry-run"]
+            "checkpoint_every=200", "members=2", "workers=1", f"results={tmp_path}", "--dry-run", "calibrate=false"]
     assert main(args) == 0
     assert "2,000 env steps in all (1,000 left to run;" in capsys.readouterr().out  # no checkpoint: seed 1 redone
     checkpoint_path(*where, [0, 1]).parent.mkdir(parents=True)

@@ -92,8 +92,23 @@ def test_same_seed_same_trajectory_and_check_env():
     check_env(make_env("tabletop_manipulation"), skip_render_check=True)
 
 
-def test_gym_registration_and_horizons():
+def test_gym_ids_register_on_import_in_both_forms():
+    """As gymnasium packages do: ``import harness.envs`` registers the ids, and ``module:id`` imports the module;
+    checked in fresh interpreters (this one has registered long ago); ``register_gym()`` stays an idempotent alias."""
+    import subprocess
+    import sys
+
+    for code in ("import gymnasium as gym, harness.envs; e = gym.make('earl/SawyerDoor-v0')",
+                 "import gymnasium as gym; e = gym.make('harness.envs:earl/TabletopManipulation-v0')"):
+        out = subprocess.run([sys.executable, "-c", code + "; print(e.spec.max_episode_steps, e.reset(seed=0)[0].shape)"],
+                             capture_output=True, text=True, timeout=300)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split()[0] in ("300", "200")
     register_gym()
+    register_gym()
+
+
+def test_gym_registration_and_horizons():
     env = gym.make("earl/TabletopManipulation-v0")
     assert env.spec.max_episode_steps == 200
     env.reset(seed=0)

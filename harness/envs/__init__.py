@@ -84,10 +84,15 @@ def _entry_point(name: str):
 
 
 def register_gym() -> None:
-    """Register the gymnasium ids; idempotent. Called by ``harness`` entry points and tests."""
+    """Register the gymnasium ids; idempotent. Importing this module already does (as gymnasium packages do), so
+    ``gym.make("earl/SawyerDoor-v0")`` works after ``import harness.envs``, and so does
+    ``gym.make("harness.envs:earl/SawyerDoor-v0")`` without it."""
     for name, gym_id in GYM_IDS.items():
         if gym_id not in gym.registry:
             gym.register(id=gym_id, entry_point=_entry_point(name), max_episode_steps=EVAL_HORIZONS[name])
+
+
+register_gym()
 
 
 __all__ = [

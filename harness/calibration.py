@@ -1,0 +1,115 @@
+"""Measured training speed for ``harness run --dry-run``: what a plan will cost on this machine.
+
+A calibration trains one group's algorithm (its own config, its members, the threads a worker gets) for a few hundred
+steps past a short seed phase, as ``harness bench train`` does, and records steps/s per member. Results are cached in
+``<cache>/calibration.json`` per (machine, torch, device, threads, algorithm, env, members, config), so only the
+first dry-run of a new kind of group pays for it (seconds per group). :func:`estimate` then packs the groups onto the
+workers, longest first (the order a pool runs them in, give or take), and returns the time until the last finishes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+WARMUP, MEASURE = 120, 120  # seed-phase steps (no updates), then timed steps with updates
+
+
+def _cache_file() -> Path:
+    from harness.data import cache_dir
+
+    return cache_dir() / "calibration.json"
+
+
+def machine() -> str:
+    """CPU model (or GPU name) and torch version: speeds are only comparable on the same kind of machine."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu} | torch {torch.__version__}"
+
+
+def key(group: dict[str, Any], threads: int) -> str:
+    return "|".join([machine(), group["device"], f"threads={threads}", group.get("algo_class", group["algo"]),
+                     group["env"], f"members={len(group['seeds'])}", group["config_hash"]])
+
+
+def read_cache() -> dict[str, float]:
+    try:
+        d = json.loads(_cache_file().read_text())
+        return d if isinstance(d, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def measure(group: dict[str, Any], threads: int) -> float:
+    """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O)."""
+    from algorithms.api import DemoSet
+    from harness.data import load_demos
+    from harness.envs import get_spec
+    from harness.protocol import Interaction
+    from harness.registry import ALGORITHMS
+
+    cls = ALGORITHMS[group.get("algo_class", group["algo"])]
+    cfg = cls.Config.from_dict({**group["config"], **({"seed_steps": WARMUP} if "seed_steps" in cls.Config.keys()
+                                                       else {})})
+    old = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
+        algo = cls(get_spec(group["env"]), demos, cfg, list(group["seeds"]), torch.device(group["device"]))
+        inter = Interaction(group["env"], list(group["seeds"]))
+        inter.start(algo)
+        for _ in range(WARMUP + 10):
+            inter.step(algo)
+        t = time.perf_counter()
+        for _ in range(MEASURE):
+            inter.step(algo)
+        return MEASURE / (time.perf_counter() - t)
+    finally:
+        torch.set_num_threads(old)
+
+
+def rates(groups: list[dict[str, Any]], threads: int, calibrate: bool, log=print) -> list[float | None]:
+    """Steps/s per member of each group: cached, or measured now when ``calibrate`` (and cached), else None."""
+    from harness.data import atomic_write_bytes
+
+    cache, out, dirty = read_cache(), [], False
+    for g in groups:
+        k = key(g, threads)
+        if k not in cache and calibrate:
+            log(f"  calibrating {g['env']}/{g['algo']} (members={len(g['seeds'])}, {threads} thread(s)) ...")
+            cache[k], dirty = measure(g, threads), True
+        out.append(cache.get(k))
+    if dirty:
+        try:
+            atomic_write_bytes(_cache_file(), json.dumps(cache, indent=1, sort_keys=True).encode())
+        except OSError:
+            pass  # a read-only cache: measured again next time
+    return out
+
+
+def estimate(work: list[tuple[int, float]], workers: int) -> float:
+    """Seconds until the last of ``work`` = [(steps left per member, steps/s per member)] finishes on ``workers``
+    processes, longest first onto the least loaded worker."""
+    load = [0.0] * max(workers, 1)
+    for seconds in sorted((steps / rate for steps, rate in work if steps > 0), reverse=True):
+        i = load.index(min(load))
+        load[i] += seconds
+    return max(load)
+
+
+def worker_threads(workers: int) -> int:
+    """The torch threads each worker of a local pool gets (harness.backends.run_pool); one worker: torch's default."""
+    return max(1, (os.cpu_count() or 1) // workers) if workers > 1 else torch.get_num_threads()
