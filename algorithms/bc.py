@@ -1,4 +1,4 @@
-"""BC: behaviour cloning on the forward demos (ALGORITHMS.md section 12, [MP] section 5.2).
+"""BC: behaviour cloning on the forward demos (docs/algorithms.md section 12, [MP] section 5.2).
 
 No environment interaction. DEFAULTs (NOT FOUND: loss, architecture, steps): the section-3 actor on o = [s, g_demo]
 (trunk 50 + LayerNorm + Tanh, 2 x 256, squashed Gaussian head), Adam 3e-4, batches of 256 demo pairs drawn with

@@ -21,7 +21,7 @@ from algorithms.core.sac import SACConfig
 
 @dataclass
 class SACAlgoConfig(SACConfig, AlgoConfig):
-    """SAC hyperparameters (ALGORITHMS.md 3.3) plus what every SAC-based algorithm needs."""
+    """SAC hyperparameters (docs/algorithms.md 3.3) plus what every SAC-based algorithm needs."""
 
     seed_steps: int = setting(10_000, "first env steps without any update (num_seed_frames)", ge=0, le=10**9)
     buffer_capacity: int = setting(10_000_000, "replay capacity per buffer (storage grows on demand)", ge=1, le=10**9)

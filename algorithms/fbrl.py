@@ -1,4 +1,4 @@
-"""FBRL: forward-backward RL with a KNOWN reward for reaching rho0 (ALGORITHMS.md section 6, [MC] fbrl.py).
+"""FBRL: forward-backward RL with a KNOWN reward for reaching rho0 (docs/algorithms.md section 6, [MC] fbrl.py).
 
 Han et al. 2015 / Eysenbach et al. 2017 ("leave no trace"). Two SAC agents with identical settings:
 

@@ -1,4 +1,4 @@
-"""FBRL + VICE: MEDAL with discriminator positives from rho0 (ALGORITHMS.md section 11, [MP] section 5.3).
+"""FBRL + VICE: MEDAL with discriminator positives from rho0 (docs/algorithms.md section 11, [MP] section 5.3).
 
 The backward policy then minimises JS(rho_b || rho0): a practical FBRL whose "reach rho0" reward is learned from
 examples. Everything else (reward -log(1 - C(s')), mixup, batch 800, one step every 10, 128-unit discriminator,

@@ -1,4 +1,4 @@
-"""Forward/backward controllers: the machinery FBRL, R3L, MEDAL and MEDAL's ablations share (ALGORITHMS.md 6, 7, 9-11).
+"""Forward/backward controllers: the machinery FBRL, R3L, MEDAL and MEDAL's ablations share (docs/algorithms.md 6, 7, 9-11).
 
 A forward SAC agent solves the task (sparse task reward on [s', g], the evaluated policy); a backward SAC agent
 "resets" the system in its own way. Per member, the controllers alternate: a phase lasts ``switch_every`` (300) steps,

@@ -1,4 +1,4 @@
-"""naive GAIL / oracle GAIL, implemented as DAC (Discriminator-Actor-Critic) on the SAC core (ALGORITHMS.md section 13).
+"""naive GAIL / oracle GAIL, implemented as DAC (Discriminator-Actor-Critic) on the SAC core (docs/algorithms.md section 13).
 
 DAC (Kostrikov et al. 2018) is an off-policy GAIL: a discriminator D(o, a) separates the forward demos' (o, a) pairs
 from the agent's, and the learner maximises the reward r = log D - log(1 - D), i.e. D's logit ([DC] "airl" default),

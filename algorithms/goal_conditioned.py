@@ -1,4 +1,4 @@
-"""Shared machinery of the goal-conditioned reset-free methods RISC (ALGORITHMS.md 14) and VaPRL (8).
+"""Shared machinery of the goal-conditioned reset-free methods RISC (docs/algorithms.md 14) and VaPRL (8).
 
 ONE goal-conditioned SAC agent serves both directions with ONE replay buffer (14.1, 14.5, 8.1):
 

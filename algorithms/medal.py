@@ -1,6 +1,6 @@
 """MEDAL: Matching Expert Distributions for Autonomous Learning (Sharma, Ahmad, Finn, ICML 2022).
 
-ALGORITHMS.md section 9. A forward SAC agent solves the task (sparse task reward); a backward SAC
+docs/algorithms.md section 9. A forward SAC agent solves the task (sparse task reward); a backward SAC
 agent is rewarded for visiting states that a discriminator C cannot tell apart from the forward
 demonstrations' states, r_b = -log(1 - C(s') + 1e-10), so that the backward policy brings the
 system to the states the expert visits (rho*) rather than back to rho0. Controllers alternate
@@ -50,7 +50,7 @@ __all__ = ["BACKWARD", "FORWARD", "MEDAL", "MEDALConfig", "demo_states", "relabe
 
 @dataclass
 class MEDALConfig(ForwardBackwardConfig):
-    """MEDAL defaults = the reference code's (ALGORITHMS.md 9.3); switch_every = 300."""
+    """MEDAL defaults = the reference code's (docs/algorithms.md 9.3); switch_every = 300."""
 
     disc_every: int = setting(10, "one discriminator step every this many env steps", ge=1, le=10**9)
     disc_batch: int = setting(400, "positives per discriminator step (and as many negatives)", ge=1, le=65_536)

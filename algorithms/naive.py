@@ -1,4 +1,4 @@
-"""Naive RL: one forward SAC agent run reset-free on the task reward (ALGORITHMS.md section 4).
+"""Naive RL: one forward SAC agent run reset-free on the task reward (docs/algorithms.md section 4).
 
 The episodic approach dropped into the autonomous setting: no backward policy, only EARL's hard resets every H_T.
 The card's segmenting is a DEFAULT (NOT FOUND in the sources): the stream is cut into pseudo-episodes of

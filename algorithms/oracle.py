@@ -1,4 +1,4 @@
-"""Oracle RL: episodic SAC with a reset to rho0 every episode (ALGORITHMS.md section 5, [MC] oracle.py).
+"""Oracle RL: episodic SAC with a reset to rho0 every episode (docs/algorithms.md section 5, [MC] oracle.py).
 
 A reference upper bound, not an autonomous-RL method. The train env is reset at the end of every episode: the
 algorithm asks the protocol loop for it through ``observe``'s return value (each such reset counts as an

@@ -1,4 +1,4 @@
-"""R3L: the backward ("perturbation") policy maximises RND novelty (ALGORITHMS.md section 7; Zhu et al., ICLR 2020).
+"""R3L: the backward ("perturbation") policy maximises RND novelty (docs/algorithms.md section 7; Zhu et al., ICLR 2020).
 
 The forward policy attempts the task from the new state the backward policy reaches in each trial. State-based, with
 the env's sparse task reward for the forward policy (as in the EARL/MEDAL experiments).

@@ -1,4 +1,4 @@
-"""RISC: Reset-free RL with Intelligently Switching Controller (Patil et al., ICLR 2024), ALGORITHMS.md 14.
+"""RISC: Reset-free RL with Intelligently Switching Controller (Patil et al., ICLR 2024), docs/algorithms.md 14.
 
 One goal-conditioned SAC agent and one buffer (forward + backward demos) for both directions
 (:mod:`algorithms.goal_conditioned`). Forward goals are drawn uniformly from the task goals,

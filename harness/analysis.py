@@ -91,7 +91,7 @@ def method_color(name: str) -> str:
 
 
 #: Table 1 of the MEDAL paper (Sharma, Ahmad, Finn, ICML 2022), as transcribed in
-#: shared/ALGORITHMS.md section 15: deployed performance of the final policy, mean (standard
+#: docs/algorithms.md section 15: deployed performance of the final policy, mean (standard
 #: error) over 5 seeds. Keys: (algo, env) -> (mean, se).
 PUBLISHED_TABLE1: dict[tuple[str, str], tuple[float, float]] = {
     ("naive", "tabletop_manipulation"): (0.32, 0.17),
@@ -113,7 +113,7 @@ PUBLISHED_TABLE1: dict[tuple[str, str], tuple[float, float]] = {
     ("oracle", "sawyer_door"): (1.00, 0.00),
     ("oracle", "sawyer_peg"): (1.00, 0.00),
 }
-PUBLISHED_TABLE1_SOURCE = "MEDAL paper (Sharma et al., ICML 2022), Table 1, via shared/ALGORITHMS.md §15"
+PUBLISHED_TABLE1_SOURCE = "MEDAL paper (Sharma et al., ICML 2022), Table 1, via docs/algorithms.md §15"
 
 #: ablation groups shown by the dashboard when their algorithms have results
 ABLATIONS: dict[str, tuple[str, ...]] = {

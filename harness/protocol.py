@@ -3,7 +3,7 @@
 One call of :func:`train` runs one *group*: E members (seeds) of the same (suite, env, algo,
 config) in lockstep, each with its own train env, eval env and results directory.
 
-Protocol (ALGORITHMS.md 1.2-1.3):
+Protocol (docs/algorithms.md 1.2-1.3):
 
 - the train env is EARL's persistent-state env; it is reset only when H_T steps have elapsed
   since its last reset (a hard reset, counted as an intervention) or when the algorithm asks

@@ -1,4 +1,4 @@
-"""Baselines (ALGORITHMS.md 4-7, 10-13): the per-method rules, learned-reward pieces and member independence."""
+"""Baselines (docs/algorithms.md 4-7, 10-13): the per-method rules, learned-reward pieces and member independence."""
 
 import numpy as np
 import pytest

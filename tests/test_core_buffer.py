@@ -1,4 +1,4 @@
-"""Segment replay buffer and state buffer (ALGORITHMS.md §2.4, §3.5, §9.5)."""
+"""Segment replay buffer and state buffer (docs/algorithms.md §2.4, §3.5, §9.5)."""
 
 import numpy as np
 import pytest

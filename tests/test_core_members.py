@@ -129,7 +129,7 @@ def test_members_train_independently_2000_updates():
 
 
 # ---------------------------------------------------------------------------------------------------------------------
-# discriminator (ALGORITHMS.md §9.3, §10)
+# discriminator (docs/algorithms.md §9.3, §10)
 
 
 def test_mixup_labels_are_the_mixed_labels():

@@ -1,4 +1,4 @@
-"""SAC math on small hand-checkable cases (ALGORITHMS.md §3.2)."""
+"""SAC math on small hand-checkable cases (docs/algorithms.md §3.2)."""
 
 import math
 

@@ -1,4 +1,4 @@
-"""RISC (ALGORITHMS.md 14) and VaPRL (8): switching rule, success-critic target, bootstrap masks, subgoal
+"""RISC (docs/algorithms.md 14) and VaPRL (8): switching rule, success-critic target, bootstrap masks, subgoal
 curriculum, relabelled rewards, member independence."""
 
 import math

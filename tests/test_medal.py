@@ -1,4 +1,4 @@
-"""MEDAL (ALGORITHMS.md 9): buffer contents, switching rules, update schedule, reward, member independence."""
+"""MEDAL (docs/algorithms.md 9): buffer contents, switching rules, update schedule, reward, member independence."""
 
 import numpy as np
 import torch

@@ -1,4 +1,4 @@
-"""Seed-batched learning core: member layers, masked Adam, SAC (ALGORITHMS.md §3), segment replay (§3.5) and the
+"""Seed-batched learning core: member layers, masked Adam, SAC (docs/algorithms.md §3), segment replay (§3.5) and the
 MEDAL discriminator (§9)."""
 
 from .buffer import MemberStorage, SegmentReplayBuffer, StateBuffer

@@ -1,4 +1,4 @@
-"""Timing of one member-batched SAC update against a plain single-seed ``nn.Module`` SAC (same math, ALGORITHMS.md §3).
+"""Timing of one member-batched SAC update against a plain single-seed ``nn.Module`` SAC (same math, docs/algorithms.md §3).
 
 ``bench_update(members, obs_dim, act_dim, device, n)`` returns milliseconds per update; no CLI.
 """

@@ -1,4 +1,4 @@
-"""Member-batched replay storage on preallocated tensors (ALGORITHMS.md §3.5, §2.3-2.4, §9.5).
+"""Member-batched replay storage on preallocated tensors (docs/algorithms.md §3.5, §2.3-2.4, §9.5).
 
 * :class:`SegmentReplayBuffer` stores a stream of time steps per member. Step k holds obs[k] (the observation reached),
   action[k], reward[k], terminal[k], truncated[k] (the step that led to it) and first[k]. Transition k is

@@ -1,4 +1,4 @@
-"""MEDAL state discriminator C(s) for E members (ALGORITHMS.md §9.3, §9.6, §10).
+"""MEDAL state discriminator C(s) for E members (docs/algorithms.md §9.3, §9.6, §10).
 
 Linear(obs -> 128) -> ReLU -> Linear(128 -> 1) logit; C = sigmoid(logit). Label 1 = forward-demo states (positives),
 label 0 = states visited by the backward policy (negatives). One update = BCE on 400 positives + 400 negatives with

@@ -1,4 +1,4 @@
-"""Forward and hand-written backward passes of the member networks (used by the SAC update, ALGORITHMS.md §3).
+"""Forward and hand-written backward passes of the member networks (used by the SAC update, docs/algorithms.md §3).
 
 The SAC update needs gradients of three small losses through 2 x 256 MLPs. On a CPU the autograd engine, its graph
 bookkeeping and the extra elementwise passes it makes cost as much as the matrix products themselves, so the update

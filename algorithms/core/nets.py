@@ -4,7 +4,7 @@ Every parameter carries a leading member dimension E: one process trains E indep
 of an E-member object is numerically the same object as a single-seed (E=1) one built from member i's seed.
 
 * Layers take activations shaped (E, B, features) and never mix members (batched matmuls, per-member affine).
-* Initialisation (ALGORITHMS.md §3.1: Xavier-uniform weights, zero biases) draws each member's slice from that member's
+* Initialisation (docs/algorithms.md §3.1: Xavier-uniform weights, zero biases) draws each member's slice from that member's
   own ``torch.Generator`` on the CPU, layer after layer in construction order, so member i's values do not depend on E.
 * Sampling noise comes from one generator per member (:func:`member_randn`); members that are masked out draw nothing,
   so each member's random stream advances exactly as it would in a single-seed run.
@@ -122,7 +122,7 @@ class MemberLayerNorm(nn.Module):
 
 
 class MemberTrunk(nn.Module):
-    """The feature layer of ALGORITHMS.md §3.1: Linear(in -> feature_dim) -> LayerNorm -> Tanh."""
+    """The feature layer of docs/algorithms.md §3.1: Linear(in -> feature_dim) -> LayerNorm -> Tanh."""
 
     def __init__(self, num_members: int, in_features: int, feature_dim: int, generators: Sequence[torch.Generator]):
         super().__init__()

@@ -1,4 +1,4 @@
-"""Member-batched Adam and Polyak averaging with per-member masks (ALGORITHMS.md §3.2-§3.3).
+"""Member-batched Adam and Polyak averaging with per-member masks (docs/algorithms.md §3.2-§3.3).
 
 Both operate on :class:`FlatMembers`: the parameters of one network re-pointed into ONE contiguous vector. Every
 parameter must have a leading dimension E * k stored member-major (k = 1 for plain layers, k = copies for replicated
@@ -135,7 +135,7 @@ class MemberAdam:
 
 @torch.no_grad()
 def polyak_update(target: FlatMembers, source: FlatMembers, tau: float, mask=None) -> None:
-    """target <- target + tau * (source - target) for members in ``mask`` (ALGORITHMS.md §3.2 step 4): one
+    """target <- target + tau * (source - target) for members in ``mask`` (docs/algorithms.md §3.2 step 4): one
     ``torch._foreach_lerp_`` over the per-member slices of the members that update."""
     active = target.active(mask)
     if active:

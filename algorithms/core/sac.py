@@ -1,4 +1,4 @@
-"""Seed-batched SAC as in the MEDAL reference code (ALGORITHMS.md §3).
+"""Seed-batched SAC as in the MEDAL reference code (docs/algorithms.md §3).
 
 One :class:`SAC` object holds E independent agents ("members", one per seed) with a leading member dimension on every
 parameter, optimizer state and random stream. Member i behaves exactly like an E=1 agent built with ``seeds[i]``.
@@ -36,7 +36,7 @@ HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 @dataclass
 class SACConfig:
-    """Defaults = MEDAL reference values (ALGORITHMS.md §3.3)."""
+    """Defaults = MEDAL reference values (docs/algorithms.md §3.3)."""
 
     lr: float = setting(3e-4, "Adam learning rate of actor, critic and temperature", gt=0, le=1)
     batch_size: int = setting(256, "transitions per SAC update", ge=1, le=65_536)
@@ -98,7 +98,7 @@ class Critic(nn.Module):
 
 
 class SAC:
-    """E-member SAC (ALGORITHMS.md §3). ``seeds[i]`` fully determines member i (init, acting and update noise)."""
+    """E-member SAC (docs/algorithms.md §3). ``seeds[i]`` fully determines member i (init, acting and update noise)."""
 
     def __init__(self, obs_dim: int, act_dim: int, seeds: list[int], cfg: SACConfig | None = None, device="cpu"):
         self.cfg = cfg = cfg or SACConfig()

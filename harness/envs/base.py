@@ -6,7 +6,7 @@ state count as reaching that goal?" by writing a goal into the second half of an
 (FBRL's initial-state goals, VaPRL's demo-state subgoals and hindsight relabelling all rely on it).
 
 :class:`EnvSpec` is the typed, picklable description of a task that algorithms receive. It carries
-the constants of ``shared/ALGORITHMS.md`` section 1.1 and vectorised ``is_success`` /
+the constants of ``docs/algorithms.md`` section 1.1 and vectorised ``is_success`` /
 ``compute_reward`` that work on any batch of observations (numpy or torch).
 
 :class:`EarlEnv` is the gymnasium base class. Subclasses implement the simulator; horizons are
@@ -25,7 +25,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class EnvSpec:
-    """Constants of one EARL task (ALGORITHMS.md section 1.1)."""
+    """Constants of one EARL task (docs/algorithms.md section 1.1)."""
 
     name: str  # short name used everywhere: tabletop_manipulation, sawyer_door, sawyer_peg
     gym_id: str

@@ -6,7 +6,7 @@ arithmetic exactly, in float64 like MuJoCo's qpos, without MuJoCo: 4 planar coor
 grasp flag. The MuJoCo model (``assets/tabletop/tabletop_manipulation.xml`` from the EARL data
 directory) is loaded only to render.
 
-Semantics (ALGORITHMS.md 1.1, EARL ``envs/tabletop_manipulation.py``):
+Semantics (docs/algorithms.md 1.1, EARL ``envs/tabletop_manipulation.py``):
 
 - observation (12, float32): fist xy, mug xy, attached flag pair ((-1,-1) free, (0,0) holding),
   then the 6-dim goal with the same layout;
