@@ -7,11 +7,12 @@
   instance with ``workers`` CPUs is started (or the one this process already initialised is used).
   Every task writes into the shared results path. A task whose worker dies (node lost, OOM kill,
   SIGKILL) or that raises is retried up to ``RAY_MAX_RETRIES`` times; a retry resumes from the
-  group's checkpoint because :func:`harness.runner.run_group` always resumes. Ctrl-C cancels the
+  group's checkpoint because the work function (:func:`harness.runner.run_group`) always resumes. Ctrl-C cancels the
   outstanding tasks (``ray.cancel(force=True)``) and the command exits with code 130.
 
-Both backends run the same :func:`~harness.runner.run_group`, so the same suite gives the same
-deterministic rows on either (timing metrics aside).
+Both backends run the work function they are given (``harness run`` passes :func:`harness.runner.run_group`; this
+module imports neither the runner nor the tuner), so the same suite gives the same deterministic rows on either
+(timing metrics aside). :func:`ray_session` is the one place that starts and stops Ray.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from __future__ import annotations
 import os
 import sys
 import threading
+from contextlib import contextmanager
 from typing import Any, Callable
 
 from harness.suites import ConfigError, Plan
@@ -31,14 +33,17 @@ FORWARDED_ENV = ("MUJOCO_GL", "HARNESS_DATA_DIR", "HARNESS_CACHE_DIR", "OMP_NUM_
 TEST_KILL_ENV = "HARNESS_TEST_RAY_KILL_ONCE"
 
 
-def run_plan(plan: Plan, command: str) -> list[str]:
-    """Run every group of ``plan`` on its backend; returns the error lines (one per failed group)."""
-    backend = getattr(plan, "backend", "local")
-    if backend == "local":
-        return run_local(plan, command)
-    if backend == "ray":
-        return run_ray(plan, command, getattr(plan, "ray_address", None))
-    raise ConfigError(f"unknown backend {backend!r}; known backends: local, ray")
+#: the work of one group: (group, command, progress queue, torch threads) -> an error line or None
+Work = Callable[..., "str | None"]
+
+
+def run_plan(plan: Plan, command: str, work: Work) -> list[str]:
+    """Run ``work`` on every group of ``plan`` on its backend; returns the error lines (one per failed group)."""
+    if plan.backend == "local":
+        return run_local(plan, command, work)
+    if plan.backend == "ray":
+        return run_ray(plan, command, work, plan.ray_address)
+    raise ConfigError(f"unknown backend {plan.backend!r}; known backends: local, ray")
 
 
 def _report(err: str | None, errors: list[str]) -> None:
@@ -66,18 +71,17 @@ def _skip_locked(e: Exception, plan: Plan, skipped: list[str]) -> None:
     skipped.append(str(e))
 
 
-def run_local(plan: Plan, command: str) -> list[str]:
+def run_local(plan: Plan, command: str, work: Work) -> list[str]:
     from harness.interrupts import RunInterrupted, RunLocked, sigterm_as_interrupt
-    from harness.runner import run_group
 
     if plan.workers > 1:
-        return run_pool(plan, command)
+        return run_pool(plan, command, work)
     errors: list[str] = []
     skipped: list[str] = []
     with sigterm_as_interrupt():
         for g in plan.groups:
             try:
-                _report(run_group(g, command), errors)
+                _report(work(g, command), errors)
             except RunLocked as e:
                 _skip_locked(e, plan, skipped)
             except RunInterrupted:
@@ -87,12 +91,10 @@ def run_local(plan: Plan, command: str) -> list[str]:
 
 def _pool_init(data_dir: str | None, queue=None) -> None:
     from harness import data as data_mod
-    from harness import runner
     from harness.interrupts import init_worker
 
-    init_worker()
+    init_worker(queue)
     data_mod.set_data_dir(data_dir)
-    runner._progress_queue = queue
 
 
 def _data_dir() -> str | None:
@@ -111,7 +113,7 @@ def _drain(q) -> None:
             return
 
 
-def run_pool(plan: Plan, command: str) -> list[str]:
+def run_pool(plan: Plan, command: str, work: Work) -> list[str]:
     """The groups in a pool of ``plan.workers`` spawned processes; progress lines through a queue. Ctrl-C or SIGTERM:
     no new group starts, the running ones stop at once (statuses ``interrupted``) and :class:`Interrupted` is
     raised; a second signal kills the workers (see :mod:`harness.interrupts`)."""
@@ -121,7 +123,6 @@ def run_pool(plan: Plan, command: str) -> list[str]:
     from concurrent.futures.process import BrokenProcessPool
 
     from harness.interrupts import RunInterrupted, RunLocked, sigterm_as_interrupt, stop_children
-    from harness.runner import run_group
 
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
@@ -134,7 +135,7 @@ def run_pool(plan: Plan, command: str) -> list[str]:
     futures = []
     try:
         with sigterm_as_interrupt():
-            futures = [pool.submit(run_group, g, command, None, threads) for g in plan.groups]
+            futures = [pool.submit(work, g, command, None, threads) for g in plan.groups]
             pending = set(futures)
             while pending:
                 try:
@@ -210,19 +211,22 @@ def _import_ray():
     return ray
 
 
-def _ray_env() -> dict[str, str]:
+def ray_env() -> dict[str, str]:
+    """The environment variables a Ray worker needs to see as the driver does."""
     env = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
     if os.environ.get(TEST_KILL_ENV):
         env[TEST_KILL_ENV] = os.environ[TEST_KILL_ENV]
     return env
 
 
-def _start_ray(address: str | None, num_cpus: int):
-    """(ray module, whether we started it). Joins ``address``, reuses an initialised Ray, or starts
-    a local instance with ``num_cpus`` CPUs."""
+@contextmanager
+def ray_session(address: str | None, num_cpus: int):
+    """The ray module, initialised for the block: joins ``address``, reuses an initialised Ray, or starts a local
+    instance with ``num_cpus`` CPUs (shut down again at the end of the block)."""
     ray = _import_ray()
     if ray.is_initialized():
-        return ray, False
+        yield ray
+        return
     kw: dict[str, Any] = {"log_to_driver": True, "include_dashboard": False}
     if address:
         kw["address"] = address
@@ -232,7 +236,10 @@ def _start_ray(address: str | None, num_cpus: int):
         ray.init(**kw)
     except (ConnectionError, RuntimeError, ValueError) as e:
         raise ConfigError(f"cannot connect to Ray at {address or 'a new local instance'}: {' '.join(str(e).split())}") from None
-    return ray, True
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
 
 
 def _kill_after_first_checkpoint(group: dict[str, Any]) -> None:
@@ -258,15 +265,15 @@ def _kill_after_first_checkpoint(group: dict[str, Any]) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _ray_group(group: dict[str, Any], command: str, threads: int, data_dir: str | None, env: dict[str, str]) -> None:
+def _ray_group(work: Work, group: dict[str, Any], command: str, threads: int, data_dir: str | None,
+               env: dict[str, str]) -> None:
     """The body of one Ray task: run (or resume) the group; raise on failure so Ray retries it."""
     os.environ.update(env)
     from harness import data as data_mod
-    from harness.runner import run_group
 
     data_mod.set_data_dir(data_dir)
     _kill_after_first_checkpoint(group)
-    err = run_group(group, command, None, threads)
+    err = work(group, command, None, threads)
     if err:
         raise GroupFailed(err)
 
@@ -330,24 +337,20 @@ def ray_options(device: str, num_cpus: float) -> dict[str, Any]:
     return opts
 
 
-def run_ray(plan: Plan, command: str, address: str | None = None) -> list[str]:
+def run_ray(plan: Plan, command: str, work: Work, address: str | None = None) -> list[str]:
     """Each group one Ray task; returns the error lines of the groups that failed after retries."""
-    ray, started = _start_ray(address, plan.workers)
     threads = 1  # each task reserves one CPU (num_cpus=1): one torch thread
     errors: list[str] = []
-    env, data_dir = _ray_env(), _data_dir()
-    try:
+    env, data_dir = ray_env(), _data_dir()
+    with ray_session(address, plan.workers) as ray:
         labels = [f"{g['env']}/{g['algo']} seeds={','.join(map(str, g['seeds']))}" for g in plan.groups]
 
         def on_error(label: str, line: str) -> None:
             _report(line if line.startswith(label) else f"{label}: {line}", errors)
 
         try:
-            run_ray_tasks(ray, _ray_group, [(g, command, threads, data_dir, env) for g in plan.groups], labels,
-                          ray_options(plan.groups[0]["device"], 1), on_error)
+            run_ray_tasks(ray, _ray_group, [(work, g, command, threads, data_dir, env) for g in plan.groups],
+                          labels, ray_options(plan.groups[0]["device"], 1), on_error)
         except KeyboardInterrupt:
             raise Interrupted(_mark_interrupted(plan)) from None
-    finally:
-        if started:
-            ray.shutdown()
     return errors

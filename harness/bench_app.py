@@ -191,10 +191,10 @@ def bench_app(runs: int = 100, evals: int = 300, repeats: int = 3, results: str 
 
 
 def bench_app_cli(ov: dict[str, str]) -> int:
-    from harness.cli import UsageError, _int
+    from harness.words import UsageError, optional_integer
 
-    runs, evals = _int("runs", ov.get("runs"), 100, 1), _int("evals", ov.get("evals"), 300, 1)
-    repeats = _int("repeats", ov.get("repeats"), 3, 1)
+    runs, evals = optional_integer("runs", ov.get("runs"), 100, 1), optional_integer("evals", ov.get("evals"), 300, 1)
+    repeats = optional_integer("repeats", ov.get("repeats"), 3, 1)
     results = ov.get("results")
     if results is not None and not Path(results).is_dir():
         raise UsageError(f"results directory {results!r} does not exist")

@@ -14,12 +14,12 @@ import time
 import torch
 
 from algorithms.api import DemoSet
-from harness.cli import UsageError, _int
 from harness.data import load_demos
 from harness.envs import ENVS, get_spec
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
 from harness.suites import resolve_algo_config
+from harness.words import UsageError, optional_integer
 
 
 def bench_train(algo: str, env: str, members: int, steps: int, device: str, repeats: int = 3, seed_steps: int = 1000,
@@ -68,7 +68,7 @@ def bench_train_cli(ov: dict[str, str]) -> int:
     if env not in ENVS:
         raise UsageError(f"unknown env {env!r}; known envs: {', '.join(ENVS)}")
     if "threads" in ov:
-        torch.set_num_threads(_int("threads", ov["threads"], 1, 1))
-    bench_train(algo, env, _int("members", ov.get("members"), 1, 1), _int("steps", ov.get("steps"), 1000, 1),
-                ov.get("device", "cpu"), _int("repeats", ov.get("repeats"), 3, 1))
+        torch.set_num_threads(optional_integer("threads", ov["threads"], 1, 1))
+    bench_train(algo, env, optional_integer("members", ov.get("members"), 1, 1), optional_integer("steps", ov.get("steps"), 1000, 1),
+                ov.get("device", "cpu"), optional_integer("repeats", ov.get("repeats"), 3, 1))
     return 0

@@ -22,32 +22,16 @@ import sys
 from pathlib import Path
 
 from harness import data as data_mod
-from harness.suites import ConfigError, parse_int
-
-UsageError = ConfigError  # a user error: reported as one line, exit code 2
+from harness.words import ConfigError, UsageError, optional_integer, parse_words
 
 
 def parse_overrides(items: list[str], allowed: set[str] | None = None) -> dict[str, str]:
     """``key=value`` words into a dict (values stay strings; callers validate)."""
-    out: dict[str, str] = {}
-    for it in items:
-        if "=" not in it:
-            raise UsageError(f"expected key=value, got {it!r}")
-        k, v = it.split("=", 1)
-        if not k:
-            raise UsageError(f"empty key in {it!r}")
-        if allowed is not None and k not in allowed:
-            raise UsageError(f"unknown key {k!r}; known keys: {', '.join(sorted(allowed))}")
-        out[k] = v
-    return out
+    return parse_words(items, allowed)[0]
 
 
 def _csv(v: str | None) -> list[str] | None:
     return [x for x in v.split(",") if x] if v else None
-
-
-def _int(key: str, v: str | None, default: int, minimum: int = 0) -> int:
-    return default if v is None else parse_int(key, v, minimum)
 
 
 def cmd_list(args) -> int:
@@ -86,7 +70,7 @@ def cmd_data(args) -> int:
             if e not in ENVS:
                 raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
         out = Path(ov["out"]) if "out" in ov else data_mod.cache_dir()
-        seed = _int("seed", ov.get("seed"), 0)
+        seed = optional_integer("seed", ov.get("seed"), 0)
         counts = {"tabletop_manipulation": (12, 12), "sawyer_door": (5, 5), "sawyer_peg": (10, 20)}
         for e in envs:
             for direction, n in zip(data_mod.DIRECTIONS, counts[e]):
@@ -108,8 +92,8 @@ def cmd_bench(args) -> int:
         for e in envs or []:
             if e not in ENVS:
                 raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
-        steps = _int("steps", ov.get("steps"), 0, 1) if "steps" in ov else None
-        bench_env(envs, steps, _int("repeats", ov.get("repeats"), 5, 1))
+        steps = optional_integer("steps", ov.get("steps"), 0, 1) if "steps" in ov else None
+        bench_env(envs, steps, optional_integer("repeats", ov.get("repeats"), 5, 1))
         return 0
     if args.what == "train":
         from harness.bench_train import bench_train_cli

@@ -66,6 +66,8 @@ def remove_stale_temp(dirs: list[Path]) -> list[Path]:
 
 # ------------------------------------------------------------------------------------------------ workers
 _in_group = False
+#: in a pool worker: where progress lines go (the parent prints them); None elsewhere
+progress_queue = None
 
 
 def _worker_sigterm(signum, frame) -> None:
@@ -74,10 +76,13 @@ def _worker_sigterm(signum, frame) -> None:
     os._exit(130)  # idle worker: nothing to save
 
 
-def init_worker() -> None:
-    """In a pool worker: ignore the terminal's SIGINT, stop on the parent's SIGTERM (see the module docstring)."""
+def init_worker(queue=None) -> None:
+    """In a pool worker: ignore the terminal's SIGINT, stop on the parent's SIGTERM (see the module docstring), send
+    progress lines to ``queue``."""
+    global progress_queue
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _worker_sigterm)
+    progress_queue = queue
 
 
 @contextmanager

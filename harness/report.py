@@ -29,7 +29,9 @@ from pathlib import Path
 import pandas as pd
 
 from harness import analysis as A
-from harness.suites import ConfigError, load_suite, parse_int
+from harness.suites import ConfigError, load_suite
+from harness.words import integer as parse_int
+from harness.words import parse_words
 
 KEYS = {"suite", "results", "out", "step", "smooth", "published", "metric", "doc"}
 SOURCES = ("risc_paper", "earl_benchmark")
@@ -39,15 +41,7 @@ Y_LABELS = {"deployed_success": "Deployed success", "deployed_return": "Deployed
 
 
 def parse(overrides: list[str]) -> dict[str, str]:
-    out: dict[str, str] = {}
-    for it in overrides:
-        if "=" not in it:
-            raise ConfigError(f"expected key=value, got {it!r}; usage: harness report [suite=NAME] [results=DIR] [out=DIR]")
-        k, v = it.split("=", 1)
-        if k not in KEYS:
-            raise ConfigError(f"unknown key {k!r} for harness report; known keys: {', '.join(sorted(KEYS))}")
-        out[k] = v
-    return out
+    return parse_words(overrides, KEYS)[0]
 
 
 def algo_colors(algos) -> dict[str, str]:

@@ -39,7 +39,8 @@ from harness.suites import (
     load_suite,
     resolve_algo_config,
 )
-from harness.suites import parse_int as _int
+from harness.words import integer as _int
+from harness.words import names, parse_words
 
 #: every key=value word of ``harness run``: (default, meaning); ``harness run --help`` prints this table
 RUN_KEYS: dict[str, tuple[str, str]] = {
@@ -70,30 +71,15 @@ DEFAULT_STEPS = {"tabletop_manipulation": 3_000_000, "sawyer_door": 5_000_000, "
 PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
 
 
-def _list(v: Any) -> list[str]:
-    if isinstance(v, (list, tuple)):
-        return [str(x) for x in v]
-    return [x.strip() for x in str(v).split(",") if x.strip()]
-
-
 def _seeds(v: Any) -> list[int]:
     if isinstance(v, (list, tuple)) or (isinstance(v, str) and "," in v):
-        seeds = [_int("seeds", x, 0, MAX_SEED) for x in _list(v)]
+        seeds = [_int("seeds", x, 0, MAX_SEED) for x in (v if isinstance(v, (list, tuple)) else v.split(","))]
         if len(set(seeds)) != len(seeds):
             raise ConfigError(f"seeds must be distinct, got {v!r}")
         if len(seeds) > MAX_SEEDS:
             raise ConfigError(f"at most {MAX_SEEDS} seeds per run command, got {len(seeds)}")
         return seeds
     return list(range(_int("seeds", v, 1, MAX_SEEDS)))
-
-
-def _names(key: str, v: Any) -> list[str]:
-    """A list of algorithm or env names; a name given twice is an input error (it would plan a group twice)."""
-    names = _list(v)
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise ConfigError(f"{key} lists {', '.join(twice)} more than once")
-    return names
 
 
 def _device(v: str) -> str:
@@ -161,8 +147,8 @@ def _product_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int
     """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env."""
     from harness.registry import ALGORITHMS
 
-    algos = _names("algo", ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
-    envs = _names("env", ov.get("envs") or ov.get("env") or suite.get("envs") or [])
+    algos = names("algo", ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
+    envs = names("env", ov.get("envs") or ov.get("env") or suite.get("envs") or [])
     _check_envs_algos(envs, algos)
     seeds = seeds_ov if seeds_ov is not None else _seeds(suite.get("seeds", 1))
     members = _int("members", suite.get("members", 1), 1, MAX_MEMBERS)
@@ -188,8 +174,8 @@ def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] |
     cells = suite["cells"]
     if not isinstance(cells, list) or not cells:
         raise ConfigError("suite key 'cells' must be a non-empty list of {algo, env, steps, ...} mappings")
-    pick_algos = set(_names("algo", ov.get("algos") or ov.get("algo") or []))
-    pick_envs = set(_names("env", ov.get("envs") or ov.get("env") or []))
+    pick_algos = set(names("algo", ov.get("algos") or ov.get("algo") or []))
+    pick_envs = set(names("env", ov.get("envs") or ov.get("env") or []))
     units, seen = [], set()
     for n, c in enumerate(cells):
         where = f"cell {n + 1} of suite 'cells'"
@@ -223,25 +209,11 @@ def build_plan(words: list[str]) -> Plan:
     from harness.data import load_demos
     from harness.registry import ALGORITHMS
 
-    ov: dict[str, str] = {}
-    algo_ov: dict[str, dict[str, str]] = {}
-    seen: set[str] = set()
-    for w in words:
-        if "=" not in w:
-            raise ConfigError(f"expected key=value, got {w!r}")
-        k, v = w.split("=", 1)
-        if k in seen:
-            raise ConfigError(f"{k} is given twice ({w!r}); give each key once")
-        seen.add(k)
-        if "." in k:
-            scope, key = k.split(".", 1)
-            if scope != "all" and scope not in ALGORITHMS:
-                raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
-            algo_ov.setdefault(scope, {})[key] = v
-        elif k not in RUN_KEYS:
-            raise ConfigError(f"unknown key {k!r}; known keys: {', '.join(sorted(RUN_KEYS))} or <algo>.<key>")
-        else:
-            ov[k] = v
+    for w in words:  # name the unknown algorithm of an override, not just its scope
+        scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
+        if scope is not None and scope != "all" and scope not in ALGORITHMS:
+            raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
+    ov, algo_ov = parse_words(words, RUN_KEYS, scope=lambda s: s == "all" or s in ALGORITHMS)
     for a, b in (("algo", "algos"), ("env", "envs")):
         if a in ov and b in ov:
             raise ConfigError(f"give {a}= or {b}=, not both")
@@ -312,12 +284,12 @@ def build_plan(words: list[str]) -> Plan:
             )
     workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1, MAX_WORKERS)
     plan.workers = min(workers, max(len(plan.groups), 1))
-    plan.backend, plan.ray_address = backend, ov.get("ray_address")  # read by harness.backends.run_plan
+    plan.backend, plan.ray_address = backend, ov.get("ray_address")
     calibrate = ov.get("calibrate", "true").lower()
     if calibrate not in ("true", "false"):
         raise ConfigError(f"calibrate must be true or false, got {ov['calibrate']!r}")
     plan.calibrate = calibrate == "true"
-    _check_results_dirs(plan)
+    check_results_dirs(plan)
     return plan
 
 
@@ -329,7 +301,7 @@ def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
     return all(k in new and new[k] == v for k, v in old.items())
 
 
-def _check_results_dirs(plan: Plan) -> None:
+def check_results_dirs(plan: Plan) -> None:
     """Refuse to mix runs of a different config into an existing results directory (a config that only gained
     keys, at the defaults that keep the old behaviour, is the same config: see :func:`only_gained_keys`)."""
     from harness.results import RUN_FILE, run_dir
@@ -390,6 +362,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
     ``interrupted``; the last checkpoint is the resume point). ``should_stop`` (no arguments, called after every
     evaluation) ends the run early (tuning's pruner); ``group["study"]``/``group["trial"]``, when present, fill the
     results' metadata columns."""
+    from harness import interrupts
     from harness.interrupts import RunInterrupted, in_group, remove_stale_temp, run_locks
     from harness.protocol import RunSpec
     from harness.results import update_status
@@ -406,7 +379,7 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
     )
     label = f"{group['env']}/{group['algo']} seeds={','.join(map(str, group['seeds']))}"
     dirs = spec.member_dirs()
-    queue = queue if queue is not None else _progress_queue
+    queue = queue if queue is not None else interrupts.progress_queue
 
     def say(msg: str) -> None:
         if queue is not None:
@@ -433,10 +406,6 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
             _try_status(update_status, d, state="failed", steps_per_s=0.0, eta_s=math.inf, error=err,
                         traceback=traceback.format_exc())
         return f"{label}: {err}"
-
-
-#: progress lines of a pool worker go to the parent through this queue (set by the pool's initializer)
-_progress_queue = None
 
 
 def _try_status(write, d: Path, **fields: Any) -> None:
@@ -546,7 +515,7 @@ def run_cli(words: list[str], dry_run: bool = False) -> int:
     t0 = time.time()
     from harness.backends import run_plan
 
-    errors = run_plan(plan, command)
+    errors = run_plan(plan, command, run_group)
     print(f"done: {len(plan.groups) - len(errors)}/{len(plan.groups)} group(s) in {_fmt_time(time.time() - t0)}; "
           f"results in {plan.groups[0]['results']}")
     return 1 if errors else 0

@@ -29,28 +29,11 @@ from typing import Any
 
 import yaml
 
-from algorithms.api import parse_int as _parse_int
+from harness.words import ConfigError
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every",
               "log_every", "config", "members", "cells", "criterion"}
-
-
-class ConfigError(ValueError):
-    """Bad suite/config input; reported as one line."""
-
-
-def parse_int(key: str, v: Any, minimum: int = 0, maximum: int | None = None) -> int:
-    """An integer setting (``300000``, ``3e5``, ``300_000``) in [``minimum``, ``maximum``]."""
-    try:
-        n = _parse_int(key, v)
-    except (ValueError, OverflowError) as e:
-        raise ConfigError(str(e) if isinstance(e, ValueError) else f"{key} must be an integer, got {v!r}") from None
-    if n < minimum:
-        raise ConfigError(f"{key} must be >= {minimum}, got {v}")
-    if maximum is not None and n > maximum:
-        raise ConfigError(f"{key} must be <= {maximum:,}, got {v}")
-    return n
 
 
 def list_suites() -> list[str]:
@@ -184,6 +167,8 @@ class Plan:
     groups: list[dict[str, Any]] = field(default_factory=list)
     unregistered: list[str] = field(default_factory=list)
     workers: int = 1
+    backend: str = "local"  # local (a process pool) or ray (harness.backends)
+    ray_address: str | None = None  # a Ray cluster to join; None: start a local one
     calibrate: bool = True  # --dry-run measures the speed of groups not measured yet (harness.calibration)
 
 

@@ -40,7 +40,9 @@ from typing import Any
 
 import yaml
 
-from harness.suites import SUITES_DIR, ConfigError, parse_int
+from harness.suites import SUITES_DIR, ConfigError
+from harness.words import integer as parse_int
+from harness.words import parse_words
 
 #: every key=value word of ``harness tune``: (default, meaning); ``harness tune --help`` prints this table
 TUNE_KEY_HELP: dict[str, tuple[str, str]] = {
@@ -145,18 +147,8 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     from harness.registry import ALGORITHMS
     from harness.runner import build_plan
 
-    ov: dict[str, str] = {}
-    algo_words: list[str] = []
-    for w in words:
-        if "=" not in w:
-            raise ConfigError(f"expected key=value, got {w!r}")
-        k, v = w.split("=", 1)
-        if "." in k:
-            algo_words.append(w)
-        elif k not in TUNE_KEYS:
-            raise ConfigError(f"unknown key {k!r}; known keys: {', '.join(sorted(TUNE_KEYS))} or <algo>.<key>")
-        else:
-            ov[k] = v
+    ov, scoped = parse_words(words, TUNE_KEYS, scope=lambda s: True)
+    algo_words = [f"{s}.{k}={v}" for s, kv in scoped.items() for k, v in kv.items()]
     algo = ov.get("algo", "medal")
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
@@ -396,7 +388,7 @@ def trial_progress(dirs: list[Path]) -> tuple[int, float]:
 def _objective(setup: dict[str, Any], threads: int | None):
     optuna = _optuna()
     from harness.results import write_status
-    from harness.runner import _check_results_dirs, build_plan, run_group
+    from harness.runner import build_plan, check_results_dirs, run_group
 
     retry_cls = _retry_callback()
 
@@ -413,7 +405,7 @@ def _objective(setup: dict[str, Any], threads: int | None):
             plan = build_plan(words + [f"results={trial_dir}"])
             for g in plan.groups:
                 g.update(suite=f"tune_{setup['study']}", study=setup["study"], trial=number)
-            _check_results_dirs(plan)
+            check_results_dirs(plan)
         except ConfigError as e:
             raise TrialRunError(str(e)) from None
         (group,) = plan.groups
@@ -536,18 +528,14 @@ def tune_cli(words: list[str], best: bool = False) -> int:
     n = setup["workers"]
     if finished(study) < setup["trials"]:
         if setup["backend"] == "ray":
-            from harness.backends import _ray_env, _start_ray, ray_options, run_ray_tasks
+            from harness.backends import ray_env, ray_options, ray_session, run_ray_tasks
 
-            ray, started = _start_ray(setup["ray_address"], n)
             threads = 1  # each worker task reserves one CPU
             errors: list[str] = []
-            try:
-                run_ray_tasks(ray, tune_worker, [(setup, i, threads, _ray_env()) for i in range(n)],
+            with ray_session(setup["ray_address"], n) as ray:
+                run_ray_tasks(ray, tune_worker, [(setup, i, threads, ray_env()) for i in range(n)],
                               [f"worker {i}" for i in range(n)], ray_options(_device(setup), 1),
                               lambda label, line: errors.append(f"{label}: {line}"))
-            finally:
-                if started:
-                    ray.shutdown()
             for e in errors:
                 print(f"harness: tune worker failed: {e}", file=sys.stderr)
         else:
