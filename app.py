@@ -6,7 +6,7 @@
 The directory can also be changed in the sidebar. Data are read through ``harness.results.load``
 and cached; the cache key is the number and the latest modification time of the
 ``evals.parquet``/``status.json`` files, so a rerun (any interaction, the Refresh button, or the
-auto-refresh option) picks up new results. All statistics come from ``harness.analysis``.
+auto-refresh option) picks up new results. All statistics come from ``harness.analysis`` and ``harness.stats``.
 Tabs run lazily: only the selected tab's content is computed (``?tab=...`` in the URL selects one).
 """
 
@@ -24,6 +24,10 @@ import pandas as pd
 import streamlit as st
 
 from harness import analysis as A
+from harness.labels import ABLATIONS, METHOD_COLORS, algo_label, env_label, method_color, order_algos, order_envs
+from harness.run_status import format_duration, run_status, status_counts
+from harness.stats import aggregate_scores, common_envs, probability_of_improvement, scores_by_task
+from harness.tables import PUBLISHED_TABLE1, PUBLISHED_TABLE1_SOURCE, table1, table1_csv, table1_latex, table1_markdown
 
 if TYPE_CHECKING:
     import altair as alt
@@ -137,8 +141,8 @@ def published_curves_for(sources, envs, algos, metric, window, ci) -> pd.DataFra
 
 @st.cache_data(show_spinner=False, max_entries=32)
 def table1_for(root, sig, sel: Sel, step, last_k, published) -> pd.DataFrame:
-    return A.table1(filtered(root, sig, sel), step=step, last_k=last_k,
-                    published=A.PUBLISHED_TABLE1 if published else None)
+    return table1(filtered(root, sig, sel), step=step, last_k=last_k,
+                  published=PUBLISHED_TABLE1 if published else None)
 
 
 @st.cache_data(show_spinner=False, max_entries=32)
@@ -149,7 +153,7 @@ def scores_for(root, sig, sel: Sel, step, last_k) -> pd.DataFrame:
 @st.cache_data(show_spinner=False, max_entries=32)
 def aggregates_for(root, sig, sel: Sel, step, last_k, reps) -> pd.DataFrame:
     s = scores_for(root, sig, sel, step, last_k)
-    return A.aggregate_scores(s, algos=list(sel.algos), envs=list(sel.envs), reps=reps)
+    return aggregate_scores(s, algos=list(sel.algos), envs=list(sel.envs), reps=reps)
 
 
 # ------------------------------------------------------------------------------------------
@@ -159,9 +163,9 @@ def aggregates_for(root, sig, sel: Sel, step, last_k, reps) -> pd.DataFrame:
 
 
 def palette(methods: list[str]) -> list[str]:
-    """The report's fixed colour of each method label (harness.analysis.METHOD_COLORS), so app and figures agree."""
-    by_label = {A.algo_label(a): a for a in A.METHOD_COLORS}
-    return [A.method_color(by_label.get(m, m)) for m in methods]
+    """The report's fixed colour of each method label (harness.labels.METHOD_COLORS), so app and figures agree."""
+    by_label = {algo_label(a): a for a in METHOD_COLORS}
+    return [method_color(by_label.get(m, m)) for m in methods]
 
 
 def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str, band: str,
@@ -169,7 +173,7 @@ def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str
     """Methods overlaid: mean line, band (SE or bootstrap CI), published curves dashed."""
     import altair as alt  # imported on first chart: keeps the first page load light
     c = c[c["env"] == env].copy()
-    c["method"] = c["algo"].map(A.algo_label)
+    c["method"] = c["algo"].map(algo_label)
     c["curve"] = "ours"
     lo, hi = ("ci_lo", "ci_hi") if band == "ci" else (None, None)
     c["lo"] = c[lo] if lo else c["mean"] - c["se"]
@@ -177,7 +181,7 @@ def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str
     frames = [c]
     if pub is not None and len(pub):
         p = pub[pub["env"] == env].copy()
-        p["method"] = p["algo"].map(A.algo_label)
+        p["method"] = p["algo"].map(algo_label)
         p["curve"] = p["source"]
         frames.append(p)
     d = pd.concat(frames, ignore_index=True)[["method", "curve", "step", "mean", "se", "n", "lo", "hi"]]
@@ -199,13 +203,13 @@ def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str
         x=x, y=alt.Y("mean:Q", title=y_title, scale=scale), color=color, strokeDash=dash,
         tooltip=["method", "curve", "step", alt.Tooltip("mean:Q", format=".3f"), alt.Tooltip("se:Q", format=".3f"),
                  alt.Tooltip("n:Q", format="d")])
-    return (band_layer + line).properties(title=A.env_label(env))
+    return (band_layer + line).properties(title=env_label(env))
 
 
 def curves_grid(c: pd.DataFrame, pub: pd.DataFrame | None, metric: str, band: str, ncols: int = 2) -> None:
-    envs = A.order_envs(c["env"])
-    algos = A.order_algos(list(c["algo"]) + (list(pub["algo"]) if pub is not None else []))
-    methods = [A.algo_label(a) for a in algos]
+    envs = order_envs(c["env"])
+    algos = order_algos(list(c["algo"]) + (list(pub["algo"]) if pub is not None else []))
+    methods = [algo_label(a) for a in algos]
     for i in range(0, len(envs), ncols):
         cols = st.columns(ncols)
         for col, env in zip(cols, envs[i:i + ncols]):
@@ -219,20 +223,20 @@ def curves_grid(c: pd.DataFrame, pub: pd.DataFrame | None, metric: str, band: st
 
 
 def tab_runs(root: str, tuning: bool) -> None:
-    status = A.run_status(root, stale_after=st.session_state.get("stale_after", 15) * 60)
+    status = run_status(root, stale_after=st.session_state.get("stale_after", 15) * 60)
     if not tuning:
         status = status[~status["tuning"]]
     if status.empty:
         st.info("No run directories (status.json / evals.parquet) found.")
         return
-    counts = A.status_counts(status)
+    counts = status_counts(status)
     cols = st.columns(len(counts))
     for col, (state, n) in zip(cols, counts.items()):
         col.metric(state, n)
     view = status.copy()
-    view["ETA"] = [A.format_duration(x) if s in ("running", "resumed", "stale") else "" for x, s in
+    view["ETA"] = [format_duration(x) if s in ("running", "resumed", "stale") else "" for x, s in
                    zip(view["eta_s"], view["state"])]
-    view["updated"] = [A.format_duration(x) + " ago" if not math.isnan(x) else "" for x in view["age_s"]]
+    view["updated"] = [format_duration(x) + " ago" if not math.isnan(x) else "" for x in view["age_s"]]
     first = {"failed": 0, "stale": 1, "running": 2, "resumed": 3, "unknown": 4, "done": 5}  # what needs a look first
     view = view.assign(_o=view["state"].map(first).fillna(6)).sort_values(["_o", "suite", "env", "algo", "seed"])
     st.dataframe(
@@ -315,17 +319,17 @@ def tab_table1(root, sig, sel: Sel) -> None:
     if t.empty:
         st.info("No deployed_success results for this selection.")
         return
-    st.markdown(A.table1_markdown(t, published=published))
+    st.markdown(table1_markdown(t, published=published))
     steps = t.dropna(subset=["step"]).groupby("env")["step"].max()
     st.caption("Ours: deployed success, mean (standard error, ddof=1) over seeds"
-               + (f" at step {', '.join(f'{A.env_label(e)} {int(s):,}' for e, s in steps.items())}" if len(steps) else "")
+               + (f" at step {', '.join(f'{env_label(e)} {int(s):,}' for e, s in steps.items())}" if len(steps) else "")
                + ". Best per env in bold (ties after rounding). "
-               + (f"Paper: {A.PUBLISHED_TABLE1_SOURCE}; Δ = ours − paper." if published else ""))
+               + (f"Paper: {PUBLISHED_TABLE1_SOURCE}; Δ = ours − paper." if published else ""))
     d1, d2, d3 = st.columns(3)
-    d1.download_button("CSV", A.table1_csv(t), "table1.csv", "text/csv", key="dl_csv")
-    d2.download_button("Markdown", A.table1_markdown(t, published=published), "table1.md", "text/markdown",
+    d1.download_button("CSV", table1_csv(t), "table1.csv", "text/csv", key="dl_csv")
+    d2.download_button("Markdown", table1_markdown(t, published=published), "table1.md", "text/markdown",
                        key="dl_md")
-    d3.download_button("LaTeX", A.table1_latex(t, published=published), "table1.tex", "application/x-tex",
+    d3.download_button("LaTeX", table1_latex(t, published=published), "table1.tex", "application/x-tex",
                        key="dl_tex")
     with st.expander("numbers"):
         st.dataframe(t, hide_index=True)
@@ -338,19 +342,19 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
     if scores.empty:
         st.info("No deployed_success results for this selection.")
         return
-    have = A.order_algos(scores["algo"].unique())
-    chosen = st.multiselect("methods", have, default=have, format_func=A.algo_label, key="agg_algos")
-    shared = A.common_envs(scores, chosen) if chosen else []
+    have = order_algos(scores["algo"].unique())
+    chosen = st.multiselect("methods", have, default=have, format_func=algo_label, key="agg_algos")
+    shared = common_envs(scores, chosen) if chosen else []
     if not chosen or not shared:
         st.info("Choose methods that share at least one env.")
         return
     left_out = sorted(set(scores["env"]) - set(shared))
     agg = aggregates_for(root, sig, sel._replace(envs=tuple(shared), algos=tuple(chosen)), step, last_k, 2000)
     st.markdown(f"**IQM and mean of deployed success across {len(shared)} env(s)** "
-                f"({', '.join(A.env_label(e) for e in shared)}); 95% stratified-bootstrap CIs, 2000 resamples.")
+                f"({', '.join(env_label(e) for e in shared)}); 95% stratified-bootstrap CIs, 2000 resamples.")
     if left_out:
         st.caption(f"Envs not shared by all chosen methods are left out: {', '.join(left_out)}.")
-    view = agg.assign(method=agg["algo"].map(A.algo_label))
+    view = agg.assign(method=agg["algo"].map(algo_label))
     chart = alt.Chart(view).mark_rule(strokeWidth=3).encode(
         y=alt.Y("method:N", sort=list(view["method"]), title=None), x=alt.X("iqm_lo:Q", title="IQM (deployed success)",
                                                                              scale=alt.Scale(domain=[0, 1])),
@@ -368,24 +372,24 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
         st.info("Needs results of two methods.")
         return
     c1, c2 = st.columns(2)
-    x = c1.selectbox("X", have, index=have.index("medal") if "medal" in have else 0, format_func=A.algo_label,
+    x = c1.selectbox("X", have, index=have.index("medal") if "medal" in have else 0, format_func=algo_label,
                      key="poi_x")
-    y = c2.selectbox("Y", [a for a in have if a != x], format_func=A.algo_label, key="poi_y")
-    envs_xy = A.common_envs(scores, [x, y])
+    y = c2.selectbox("Y", [a for a in have if a != x], format_func=algo_label, key="poi_y")
+    envs_xy = common_envs(scores, [x, y])
     if not envs_xy:
         st.info("These two methods share no env.")
         return
-    p, lo, hi = A.probability_of_improvement(A.scores_by_task(scores, x, envs_xy), A.scores_by_task(scores, y, envs_xy))
-    st.metric(f"P({A.algo_label(x)} > {A.algo_label(y)})", f"{p:.2f}", help="average over envs of "
+    p, lo, hi = probability_of_improvement(scores_by_task(scores, x, envs_xy), scores_by_task(scores, y, envs_xy))
+    st.metric(f"P({algo_label(x)} > {algo_label(y)})", f"{p:.2f}", help="average over envs of "
               "P(X_run > Y_run) + ½ P(=); 95% stratified-bootstrap CI")
-    st.caption(f"95% CI [{lo:.2f}, {hi:.2f}] over {len(envs_xy)} env(s): {', '.join(A.env_label(e) for e in envs_xy)}.")
+    st.caption(f"95% CI [{lo:.2f}, {hi:.2f}] over {len(envs_xy)} env(s): {', '.join(env_label(e) for e in envs_xy)}.")
 
 
 def tab_ablations(root, sig, sel: Sel) -> None:
     df = filtered(root, sig, sel)
     have = set(df["algo"].unique()) if len(df) else set()
     shown = 0
-    for title, group in A.ABLATIONS.items():
+    for title, group in ABLATIONS.items():
         present = [a for a in group if a in have]
         if len(present) < 2:
             continue
@@ -397,11 +401,11 @@ def tab_ablations(root, sig, sel: Sel) -> None:
         fp = A.final_performance(A.select(df, algo=list(present)))
         fp["final (mean (SE))"] = [f"{m:.2f} ({s:.2f})" for m, s in zip(fp["mean"], fp["se"])]
         wide = fp.pivot(index="algo", columns="env", values="final (mean (SE))")
-        wide.index = [A.algo_label(a) for a in wide.index]
-        wide.columns = [A.env_label(e) for e in wide.columns]
+        wide.index = [algo_label(a) for a in wide.index]
+        wide.columns = [env_label(e) for e in wide.columns]
         st.dataframe(wide)
     if not shown:
-        lines = "\n".join(f"- {t}: {', '.join(g)}" for t, g in A.ABLATIONS.items())
+        lines = "\n".join(f"- {t}: {', '.join(g)}" for t, g in ABLATIONS.items())
         st.info("No ablation has results for two or more of its methods yet. The groups:\n" + lines +
                 "\n\nRun e.g. `harness run algos=medal,medal_logc,fbrl_vice,bc,gail_naive,gail_oracle envs=... seeds=5`.")
 
@@ -520,7 +524,7 @@ def cell_chart(ladder, cell, ours: pd.DataFrame, pub: pd.DataFrame | None, verdi
                    base.transform_filter(alt.datum.thick).mark_line(strokeWidth=2.5).encode(
                        strokeDash=alt.StrokeDash("curve:N", scale=alt.Scale(domain=["ours", "published"],
                                                                             range=[[1, 0], [6, 3]]), legend=None))]
-    title = alt.TitleParams(f"{A.algo_label(cell.name)} · {A.env_label(cell.env)}", subtitle=verdicts)
+    title = alt.TitleParams(f"{algo_label(cell.name)} · {env_label(cell.env)}", subtitle=verdicts)
     return alt.layer(*layers).properties(title=title, height=260)
 
 
@@ -654,16 +658,16 @@ def main() -> None:
         suite_choice = st.selectbox("suite", ["all"] + suites, key="suite")
         suite = None if suite_choice == "all" else suite_choice
         sub = A.select(df, suite=suite) if len(df) else df
-        env_opts = A.order_envs(sub["env"].unique()) if len(sub) else []
-        algo_opts = A.order_algos(sub["algo"].unique()) if len(sub) else []
+        env_opts = order_envs(sub["env"].unique()) if len(sub) else []
+        algo_opts = order_algos(sub["algo"].unique()) if len(sub) else []
         scope = f"{suite_choice}:{tuning}"  # a fresh selection (everything) per suite
-        envs = tuple(st.multiselect("envs", env_opts, default=env_opts, format_func=A.env_label, key=f"envs:{scope}"))
-        algos = tuple(st.multiselect("methods", algo_opts, default=algo_opts, format_func=A.algo_label,
+        envs = tuple(st.multiselect("envs", env_opts, default=env_opts, format_func=env_label, key=f"envs:{scope}"))
+        algos = tuple(st.multiselect("methods", algo_opts, default=algo_opts, format_func=algo_label,
                                      key=f"algos:{scope}"))
         n_runs = sub.groupby(["suite", "env", "algo", "seed", "trial"], dropna=False).ngroups if len(sub) else 0
         sel = Sel(suite, envs, algos, tuning)
         st.caption(f"{n_runs} runs with results · {len(df):,} rows · files changed "
-                   f"{A.format_duration(time.time() - sig[1])} ago")
+                   f"{format_duration(time.time() - sig[1])} ago")
 
     tabs = st.tabs(TABS, key="tab", on_change="rerun", bind="query-params")
     for tab, name in zip(tabs, TABS):

@@ -58,6 +58,18 @@ class Demos(Protocol):
     source: str
 
 
+#: the transition arrays of a demo set, in EARL's file layout (``harness.data`` reads and checks exactly these)
+DEMO_FIELDS = ("observations", "actions", "rewards", "terminals", "next_observations")
+
+#: a member's phase (forward/backward controllers) or direction (goal-conditioned methods): the task, or the reset
+FORWARD, BACKWARD = 0, 1
+
+
+def demo_arrays(demos: Demos) -> dict[str, np.ndarray]:
+    """A demo set as the keyword arguments of ``SegmentReplayBuffer.add_demo``."""
+    return {k: getattr(demos, k) for k in DEMO_FIELDS}
+
+
 def demo_segments(terminals) -> tuple[np.ndarray, np.ndarray]:
     """Split flat demo transitions into trajectories: (index of each trajectory's first transition,
     trajectory id of every transition). A trajectory ends after each ``terminals`` row."""
@@ -183,11 +195,12 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
 class Algorithm(ABC):
     """Base class of registered algorithms (see the module docstring for the call order).
 
-    Subclasses set ``Config`` and implement the abstract methods. ``seeds`` has one entry per
+    Subclasses set ``Config`` and ``label`` and implement the abstract methods. ``seeds`` has one entry per
     member; member ``i`` must behave exactly as an E = 1 run with seed ``seeds[i]``.
     """
 
     Config: ClassVar[type[AlgoConfig]]
+    label: ClassVar[str] = ""  # display name in reports and the dashboard (every registered algorithm sets its own)
 
     def __init__(self, task: Task, demos: DemoSet, cfg: AlgoConfig, seeds: list[int], device: torch.device):
         self.task, self.demos, self.cfg, self.seeds, self.device = task, demos, cfg, list(seeds), device

@@ -23,7 +23,7 @@ import torch
 from algorithms.api import AlgoConfig, Algorithm, DemoSet, Task, setting
 from algorithms.common import TrainLog
 from algorithms.core.buffer import StateBuffer
-from algorithms.core.nets import member_generators
+from algorithms.core.nets import Stream, member_generators
 from algorithms.core.optim import MemberAdam
 from algorithms.core.sac import Actor, SACConfig, squashed_gaussian_log_prob
 
@@ -41,6 +41,7 @@ class BCConfig(AlgoConfig):
 class BC(Algorithm):
     """Behaviour cloning of the forward demos with the SAC actor."""
 
+    label = "BC"
     Config = BCConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: BCConfig, seeds: list[int], device: torch.device):
@@ -49,7 +50,7 @@ class BC(Algorithm):
         self.actor = Actor(self.E, O, A, SACConfig(), member_generators(seeds)).to(device)
         self.opt = MemberAdam(list(self.actor.parameters()), self.E, lr=cfg.lr)
         pairs = np.concatenate([demos.forward.observations, demos.forward.actions], 1).astype(np.float32)
-        self.data = StateBuffer(self.E, len(pairs), O + A, device, seeds, stream=10, name="demo pairs")
+        self.data = StateBuffer(self.E, len(pairs), O + A, device, seeds, stream=Stream.REPLAY, name="demo pairs")
         self.data.extend(pairs)
         self.grad_step = 0
         self.log = TrainLog(self.E, device)

@@ -36,7 +36,8 @@ class SACAlgoConfig(SACConfig, AlgoConfig):
 
 
 def member_rngs(seeds: list[int], stream: int) -> list[np.random.Generator]:
-    """One numpy Generator per member for host-side choices (goals, switching)."""
+    """One numpy Generator per member for host-side choices (goals, switching); ``stream``: an id from
+    ``core.nets.Stream``."""
     return [np.random.default_rng([s, stream]) for s in seeds]
 
 

@@ -18,7 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from algorithms.forward_backward import BACKWARD, ForwardBackward, ForwardBackwardConfig, demo_arrays
+from algorithms.api import BACKWARD, demo_arrays
+from algorithms.forward_backward import ForwardBackward, ForwardBackwardConfig
 
 
 @dataclass
@@ -29,6 +30,7 @@ class FBRLConfig(ForwardBackwardConfig):
 class FBRL(ForwardBackward):
     """Forward policy solves the task; backward policy returns to an EARL initial state."""
 
+    label = "FBRL"
     Config = FBRLConfig
     backward_ends_on_success = True
 

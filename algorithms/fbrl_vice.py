@@ -24,4 +24,5 @@ class FBRLVICEConfig(MEDALConfig):
 class FBRLVICE(MEDAL):
     """MEDAL whose discriminator separates rho0 states (positives) from backward states."""
 
+    label = "FBRL + VICE"
     Config = FBRLVICEConfig

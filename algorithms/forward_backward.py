@@ -29,18 +29,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task, setting
+from algorithms.api import BACKWARD, FORWARD, Algorithm, DemoSet, Task, demo_arrays, setting
 from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
 from algorithms.core.buffer import SegmentReplayBuffer
+from algorithms.core.nets import Stream
 from algorithms.core.sac import SAC
-
-FORWARD, BACKWARD = 0, 1
-DEMO_FIELDS = ("observations", "actions", "rewards", "terminals", "next_observations")
-
-
-def demo_arrays(demos) -> dict[str, np.ndarray]:
-    """A demo set as the keyword arguments of ``SegmentReplayBuffer.add_demo``."""
-    return {k: getattr(demos, k) for k in DEMO_FIELDS}
 
 
 @dataclass
@@ -61,13 +54,14 @@ class ForwardBackward(Algorithm):
         self.forward = SAC(O, A, [s * 2 for s in seeds], sac_cfg, device)
         self.backward = SAC(O, A, [s * 2 + 1 for s in seeds], sac_cfg, device)
         cap = cfg.buffer_capacity
-        self.fwd_buf = SegmentReplayBuffer(E, cap, O, A, device, seeds, stream=10, name="forward buffer")
-        self.bwd_buf = SegmentReplayBuffer(E, cap, O, A, device, seeds, stream=11, name="backward buffer")
+        self.fwd_buf = SegmentReplayBuffer(E, cap, O, A, device, seeds, stream=Stream.REPLAY, name="forward buffer")
+        self.bwd_buf = SegmentReplayBuffer(E, cap, O, A, device, seeds, stream=Stream.BACKWARD_REPLAY,
+                                           name="backward buffer")
         self.fwd_buf.add_demo(**demo_arrays(demos.forward))
         for d in self.backward_demos():
             self.bwd_buf.add_demo(**d)
 
-        self.rngs = member_rngs(seeds, stream=7)  # goal draws at switches
+        self.rngs = member_rngs(seeds, stream=Stream.TASK_GOALS)  # goal draws at switches
         self.phase = np.zeros(E, dtype=np.int64)
         self.phase_steps = np.zeros(E, dtype=np.int64)
         self.goal = np.zeros((E, task.state_dim), dtype=np.float32)

@@ -33,12 +33,10 @@ from torch import nn
 from algorithms.api import DemoSet, Task, setting
 from algorithms.core.buffer import StateBuffer
 from algorithms.core.discriminator import Discriminator
-from algorithms.core.nets import MemberLinear, member_generators, member_randn
+from algorithms.core.nets import MemberLinear, Stream, member_generators, member_randn
 from algorithms.core.optim import MemberAdam
 from algorithms.naive import Naive, NaiveConfig
 from algorithms.oracle import Oracle, OracleConfig
-
-DAC_INIT_STREAM, DAC_NOISE_STREAM = 40, 41
 
 
 def gradient_penalty(logits: Callable[[torch.Tensor], torch.Tensor], expert: torch.Tensor, agent: torch.Tensor,
@@ -69,10 +67,10 @@ class DACDiscriminator(Discriminator):
 
     def __init__(self, in_dim: int, seeds: list[int], device, hidden: int, lr: float, gp_weight: float):
         super().__init__(in_dim, seeds, device, hidden_dim=hidden, lr=lr, mixup=False)
-        gens = member_generators(self.seeds, "cpu", DAC_INIT_STREAM)
+        gens = member_generators(self.seeds, "cpu", Stream.DAC_INIT)
         self.net = TanhMLP(self.num_members, [in_dim, hidden, hidden, 1], gens).to(self.device)
         self.opt = MemberAdam(list(self.net.parameters()), self.num_members, lr=lr)
-        self.generators = member_generators(self.seeds, self.device, DAC_NOISE_STREAM)
+        self.generators = member_generators(self.seeds, self.device, Stream.DAC_NOISE)
         self.gp_weight = gp_weight
 
     @torch.no_grad()
@@ -108,7 +106,8 @@ class DAC:
         pairs = np.concatenate([demos.forward.observations, demos.forward.actions], 1).astype(np.float32)
         in_dim = pairs.shape[1]
         self.disc = DACDiscriminator(in_dim, seeds, device, cfg.disc_hidden, cfg.disc_lr, cfg.gp_weight)
-        self.expert = StateBuffer(self.E, len(pairs), in_dim, device, seeds, stream=12, name="demo pairs")
+        self.expert = StateBuffer(self.E, len(pairs), in_dim, device, seeds, stream=Stream.EXPERT_STATES,
+                                  name="demo pairs")
         self.expert.extend(pairs)
 
     def reward(self, batch):
@@ -141,10 +140,12 @@ class GAILOracleConfig(DACFields, OracleConfig):
 class GAILNaive(DAC, Naive):
     """naive GAIL: DAC reset-free, 300-step pseudo-episodes."""
 
+    label = "naive GAIL"
     Config = GAILNaiveConfig
 
 
 class GAILOracle(DAC, Oracle):
     """oracle GAIL: DAC with an env reset every H_E steps."""
 
+    label = "oracle GAIL"
     Config = GAILOracleConfig

@@ -27,18 +27,13 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task, setting
+from algorithms.api import FORWARD, Algorithm, DemoSet, Task, demo_arrays, setting
 from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
-from algorithms.core import manual
+from algorithms.core import Stream, manual
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.nets import generator_states, host_mask, load_generator_states, member_generators, member_randn
 from algorithms.core.optim import FlatMembers, MemberAdam, polyak_update
 from algorithms.core.sac import SAC, Actor, Critic, SACConfig
-
-FORWARD, BACKWARD = 0, 1
-DEMO_FIELDS = ("observations", "actions", "rewards", "terminals", "next_observations")
-# random-stream ids of the shared machinery (SAC uses 1 and 2; subclasses use 30 and up)
-BUFFER_STREAM, GOAL_STREAM, WARMUP_STREAM = 20, 21, 22
 
 
 @dataclass
@@ -135,12 +130,12 @@ class GoalConditioned(Algorithm):
         super().__init__(task, demos, cfg, seeds, device)
         E, O, A = self.E, task.obs_dim, task.act_dim
         self.sac = SAC(O, A, seeds, cfg.sac(), device)
-        self.buffer = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=BUFFER_STREAM,
+        self.buffer = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=Stream.GC_REPLAY,
                                           name="replay buffer")
         for d in (demos.forward, demos.reverse):
-            self.buffer.add_demo(**{k: getattr(d, k) for k in DEMO_FIELDS})
-        self.goal_rngs = member_rngs(seeds, GOAL_STREAM)
-        self.warmup_rngs = member_rngs(seeds, WARMUP_STREAM)
+            self.buffer.add_demo(**demo_arrays(d))
+        self.goal_rngs = member_rngs(seeds, Stream.GC_GOALS)
+        self.warmup_rngs = member_rngs(seeds, Stream.GC_WARMUP)
         self.direction = np.zeros(E, dtype=np.int64)
         self.phase_steps = np.zeros(E, dtype=np.int64)  # actions taken in the current phase
         self.goal = np.zeros((E, task.state_dim), dtype=np.float32)

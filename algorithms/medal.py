@@ -40,12 +40,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task, demo_segments, setting
+from algorithms.api import DemoSet, Task, demo_arrays, demo_segments, setting
 from algorithms.core.buffer import StateBuffer
 from algorithms.core.discriminator import Discriminator
-from algorithms.forward_backward import BACKWARD, FORWARD, ForwardBackward, ForwardBackwardConfig, demo_arrays
+from algorithms.core.nets import Stream
+from algorithms.forward_backward import ForwardBackward, ForwardBackwardConfig
 
-__all__ = ["BACKWARD", "FORWARD", "MEDAL", "MEDALConfig", "demo_states", "relabel_all_goals", "rho0_states"]
+__all__ = ["MEDAL", "MEDALConfig", "demo_states", "relabel_all_goals", "rho0_states"]
 
 
 @dataclass
@@ -89,6 +90,7 @@ def relabel_all_goals(demos, goals: np.ndarray, state_dim: int) -> list[dict[str
 class MEDAL(ForwardBackward):
     """MEDAL: backward policy matches the demonstrations' state distribution (ICML 2022)."""
 
+    label = "MEDAL"
     Config = MEDALConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: MEDALConfig, seeds: list[int], device: torch.device):
@@ -96,9 +98,11 @@ class MEDAL(ForwardBackward):
         E, O = self.E, task.obs_dim
         self.disc = Discriminator(O, seeds, device, hidden_dim=cfg.disc_hidden, lr=cfg.disc_lr, mixup=cfg.disc_mixup)
         pos = demo_states(demos.forward) if cfg.positives == "demos" else rho0_states(task)
-        self.pos_buf = StateBuffer(E, len(pos), O, device, seeds, stream=12, name="discriminator positives")
+        self.pos_buf = StateBuffer(E, len(pos), O, device, seeds, stream=Stream.EXPERT_STATES,
+                                   name="discriminator positives")
         self.pos_buf.extend(pos)
-        self.neg_buf = StateBuffer(E, cfg.buffer_capacity, O, device, seeds, stream=13, name="discriminator negatives")
+        self.neg_buf = StateBuffer(E, cfg.buffer_capacity, O, device, seeds, stream=Stream.AGENT_STATES,
+                                   name="discriminator negatives")
 
     def backward_demos(self) -> list[dict[str, np.ndarray]]:
         """Forward demos + backward demos relabelled with every task goal (9.5)."""

@@ -19,4 +19,5 @@ class MEDALLogCConfig(MEDALConfig):
 class MEDALLogC(MEDAL):
     """MEDAL with r_b = log C(s')."""
 
+    label = "MEDAL (log C reward)"
     Config = MEDALLogCConfig

@@ -21,11 +21,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm, DemoSet, Task, setting
+from algorithms.api import Algorithm, DemoSet, Task, demo_arrays, setting
 from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
 from algorithms.core.buffer import SegmentReplayBuffer
+from algorithms.core.nets import Stream
 from algorithms.core.sac import SAC
-from algorithms.forward_backward import demo_arrays
 
 
 @dataclass
@@ -38,6 +38,7 @@ class NaiveConfig(SACAlgoConfig):
 class Naive(Algorithm):
     """Forward SAC only; pseudo-episodes with a fresh task goal, no resets but EARL's hard ones."""
 
+    label = "naive RL"
     Config = NaiveConfig
     episodic = False  # True: ask the loop to reset the env at every episode end instead of cutting
 
@@ -45,10 +46,11 @@ class Naive(Algorithm):
         super().__init__(task, demos, cfg, seeds, device)
         E, O, A = self.E, task.obs_dim, task.act_dim
         self.agent = SAC(O, A, [s * 2 for s in seeds], cfg.sac(), device)
-        self.buf = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=10, name="replay buffer")
+        self.buf = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=Stream.REPLAY,
+                                       name="replay buffer")
         self.buf.add_demo(**demo_arrays(demos.forward))
         self.horizon = cfg.episode_steps or task.eval_horizon
-        self.rngs = member_rngs(seeds, stream=7)  # task-goal draws at cuts, seed-phase actions
+        self.rngs = member_rngs(seeds, stream=Stream.TASK_GOALS)  # task-goal draws at cuts, seed-phase actions
         self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
         self.episode_steps = np.zeros(E, dtype=np.int64)
         self.step = 0

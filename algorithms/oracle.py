@@ -27,5 +27,6 @@ class OracleConfig(NaiveConfig):
 class Oracle(Naive):
     """Episodic SAC: a reset every H_E steps and on success."""
 
+    label = "oracle RL (episodic)"
     Config = OracleConfig
     episodic = True

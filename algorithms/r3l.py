@@ -32,11 +32,9 @@ import numpy as np
 import torch
 
 from algorithms.api import DemoSet, Task, setting
-from algorithms.core.nets import MemberMLP, host_mask, member_generators
+from algorithms.core.nets import MemberMLP, Stream, host_mask, member_generators
 from algorithms.core.optim import MemberAdam
 from algorithms.forward_backward import ForwardBackward, ForwardBackwardConfig
-
-RND_INIT_STREAM = 30
 
 
 @dataclass
@@ -94,7 +92,7 @@ class RND:
 
     def __init__(self, state_dim: int, seeds: list[int], device, hidden: int, features: int, lr: float, clip: float):
         E = len(seeds)
-        gens = member_generators(seeds, "cpu", RND_INIT_STREAM)
+        gens = member_generators(seeds, "cpu", Stream.RND_INIT)
         self.target = MemberMLP(E, [state_dim, hidden, hidden, features], gens).to(device).requires_grad_(False)
         self.predictor = MemberMLP(E, [state_dim, hidden, hidden, hidden, features], gens).to(device)
         self.opt = MemberAdam(list(self.predictor.parameters()), E, lr=lr)
@@ -138,6 +136,7 @@ class RND:
 class R3L(ForwardBackward):
     """Forward task policy + backward policy seeking RND-novel states."""
 
+    label = "R3L"
     Config = R3LConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: R3LConfig, seeds: list[int], device: torch.device):

@@ -37,11 +37,10 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task, setting
+from algorithms.api import FORWARD, DemoSet, Task, setting
 from algorithms.common import load_rng_states, member_rngs, rng_states
-from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned
-
-SUCCESS_STREAM, SWITCH_STREAM = 30, 33  # AuxCritic uses stream .. stream + 2
+from algorithms.core.nets import Stream
+from algorithms.goal_conditioned import AuxCritic, GCConfig, GoalConditioned
 
 
 @dataclass
@@ -82,12 +81,14 @@ def switch_probability(p_hat: np.ndarray, t: np.ndarray, c: float, minimum_steps
 class RISC(GoalConditioned):
     """RISC with timeout-aware bootstrapping (the method of the paper)."""
 
+    label = "RISC"
     Config = RISCConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: RISCConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
-        self.success = AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, SUCCESS_STREAM, success_squash)
-        self.switch_rngs = member_rngs(seeds, SWITCH_STREAM)
+        self.success = AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, Stream.SUCCESS_CRITIC,
+                                 success_squash)
+        self.switch_rngs = member_rngs(seeds, Stream.SWITCH)
         self.switches = np.zeros(self.E)  # early switches so far (diagnostic)
 
     def phase_goals(self, mask: np.ndarray) -> np.ndarray:
@@ -139,4 +140,5 @@ class RISC(GoalConditioned):
 class RISCNoTAB(RISC):
     """RISC w/o timeout-aware bootstrapping: truncations (time limit, switch, hard reset) mask the bootstrap."""
 
+    label = "RISC w/o TAB"
     Config = RISCNoTABConfig

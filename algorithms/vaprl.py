@@ -39,12 +39,11 @@ from typing import Any
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet, Task, demo_segments, setting
+from algorithms.api import FORWARD, DemoSet, Task, demo_segments, setting
 from algorithms.common import load_rng_states, member_rngs, rng_states
-from algorithms.core.nets import generator_states, load_generator_states, member_generators
-from algorithms.goal_conditioned import FORWARD, AuxCritic, GCConfig, GoalConditioned, policy_value
+from algorithms.core.nets import Stream, generator_states, load_generator_states, member_generators
+from algorithms.goal_conditioned import AuxCritic, GCConfig, GoalConditioned, policy_value
 
-VALUE_STREAM, RELABEL_STREAM, SAC_VALUE_STREAM = 40, 43, 44  # AuxCritic uses stream .. stream + 2
 RELABEL = ("final", "final_failed", "future_demo", "none")
 CURRICULUM = ("lagrangian", "nearest_feasible")
 VALUE_CRITIC = ("sac", "separate")
@@ -177,6 +176,7 @@ class LagrangeMultiplier:
 class VaPRL(GoalConditioned):
     """VaPRL: demo-state subgoal curriculum chosen by value, with hindsight relabelling (module docstring)."""
 
+    label = "VaPRL"
     Config = VaPRLConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: VaPRLConfig, seeds: list[int], device: torch.device):
@@ -184,11 +184,11 @@ class VaPRL(GoalConditioned):
         self.candidates, self.time_distance = subgoal_candidates(demos.forward, demos.reverse, task.state_dim)
         rho0 = np.asarray(task.initial_states, dtype=np.float32).mean(axis=0)
         self.l2_distance = np.linalg.norm(self.candidates - rho0, axis=1)
-        self.value = (AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, VALUE_STREAM)
+        self.value = (AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, Stream.VALUE_CRITIC)
                       if cfg.value_critic == "separate" else None)
-        self.sac_value_gens = member_generators(seeds, self.device, SAC_VALUE_STREAM)
+        self.sac_value_gens = member_generators(seeds, self.device, Stream.SAC_VALUE)
         self.lagrange = LagrangeMultiplier(self.E, cfg.lagrange_lr, cfg.lagrange_max)
-        self.relabel_rngs = member_rngs(seeds, RELABEL_STREAM)
+        self.relabel_rngs = member_rngs(seeds, Stream.RELABEL)
         self.task_goal = np.zeros_like(self.goal)  # g* of the current / next forward phase
         self.subgoal_index = np.full(self.E, -1)  # last chosen candidate (diagnostic)
         self._phase: list[list[np.ndarray]] = [[] for _ in range(self.E)]  # [s, a, s'] rows of the open phase
@@ -353,4 +353,5 @@ class VaPRL(GoalConditioned):
 class VaPRLRISC(VaPRL):
     """RISC's re-implementation of VaPRL (gc_vaprl_sac); see the module docstring."""
 
+    label = "VaPRL (RISC's re-implementation)"
     Config = VaPRLRISCConfig

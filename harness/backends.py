@@ -23,7 +23,8 @@ import threading
 from contextlib import contextmanager
 from typing import Any, Callable
 
-from harness.suites import ConfigError, Plan
+from harness.plan import Plan, RunSpec
+from harness.words import ConfigError
 
 RAY_MAX_RETRIES = 3
 #: environment variables a Ray worker needs to see as the driver does
@@ -242,7 +243,7 @@ def ray_session(address: str | None, num_cpus: int):
         ray.shutdown()
 
 
-def _kill_after_first_checkpoint(group: dict[str, Any]) -> None:
+def _kill_after_first_checkpoint(group: RunSpec) -> None:
     """The test hook of :data:`TEST_KILL_ENV`: a thread that SIGKILLs this worker process once."""
     marker = os.environ.get(TEST_KILL_ENV)
     if not marker or os.path.exists(marker):
@@ -250,10 +251,7 @@ def _kill_after_first_checkpoint(group: dict[str, Any]) -> None:
     import signal
     import time
 
-    from harness.protocol import RunSpec
-
-    ckpt = RunSpec(suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"],
-                   steps=group["steps"], results=group["results"]).checkpoint_path()
+    ckpt = group.checkpoint_path()
 
     def watch() -> None:
         while not ckpt.exists():
@@ -265,7 +263,7 @@ def _kill_after_first_checkpoint(group: dict[str, Any]) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _ray_group(work: Work, group: dict[str, Any], command: str, threads: int, data_dir: str | None,
+def _ray_group(work: Work, group: RunSpec, command: str, threads: int, data_dir: str | None,
                env: dict[str, str]) -> None:
     """The body of one Ray task: run (or resume) the group; raise on failure so Ray retries it."""
     os.environ.update(env)
@@ -316,14 +314,11 @@ def run_ray_tasks(ray, fn: Callable[..., Any], args_list: list[tuple], labels: l
 
 def _mark_interrupted(plan: Plan) -> int:
     """After cancelling Ray tasks: the runs that were training say ``interrupted``; returns the number of groups."""
-    from harness.protocol import RunSpec
     from harness.results import read_status, update_status
 
     n = 0
     for g in plan.groups:
-        dirs = RunSpec(suite=g["suite"], env=g["env"], algo=g["algo"], seeds=g["seeds"], steps=g["steps"],
-                       results=g["results"]).member_dirs()
-        running = [d for d in dirs if (read_status(d) or {}).get("state") in ("running", "resumed")]
+        running = [d for d in g.member_dirs() if (read_status(d) or {}).get("state") in ("running", "resumed")]
         for d in running:
             update_status(d, state="interrupted", steps_per_s=0.0)
         n += bool(running)
@@ -343,14 +338,14 @@ def run_ray(plan: Plan, command: str, work: Work, address: str | None = None) ->
     errors: list[str] = []
     env, data_dir = ray_env(), _data_dir()
     with ray_session(address, plan.workers) as ray:
-        labels = [f"{g['env']}/{g['algo']} seeds={','.join(map(str, g['seeds']))}" for g in plan.groups]
+        labels = [g.label for g in plan.groups]
 
         def on_error(label: str, line: str) -> None:
             _report(line if line.startswith(label) else f"{label}: {line}", errors)
 
         try:
             run_ray_tasks(ray, _ray_group, [(work, g, command, threads, data_dir, env) for g in plan.groups],
-                          labels, ray_options(plan.groups[0]["device"], 1), on_error)
+                          labels, ray_options(plan.groups[0].device, 1), on_error)
         except KeyboardInterrupt:
             raise Interrupted(_mark_interrupted(plan)) from None
     return errors

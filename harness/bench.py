@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from harness.envs import ENVS, make_env, make_train_env
+from harness.envs import ENVS, env_info, make_env, make_train_env
 
 
 def _rate(step: Callable[[np.ndarray], object], actions: np.ndarray) -> float:
@@ -23,7 +23,7 @@ def _rate(step: Callable[[np.ndarray], object], actions: np.ndarray) -> float:
 
 
 def env_rates(name: str, steps: int, repeats: int = 5, seed: int = 0) -> dict[str, float]:
-    """Median steps/s of the bare env, the train-wrapped env and raw metaworld (Sawyer only)."""
+    """Median steps/s of the bare env, the train-wrapped env and raw metaworld (envs built on Meta-World)."""
     rng = np.random.default_rng(seed)
     spec = make_env(name).spec_
     actions = rng.uniform(-1, 1, (steps, spec.act_dim)).astype(np.float32)
@@ -36,7 +36,7 @@ def env_rates(name: str, steps: int, repeats: int = 5, seed: int = 0) -> dict[st
         for label, e in envs.items():
             rates[label].append(_rate(e.step, actions))
     out = {k: statistics.median(v) for k, v in rates.items()}
-    if name != "tabletop_manipulation":
+    if env_info(name).metaworld_class:
         from harness.envs.bench_sawyer import raw_metaworld_step_rate
 
         out["raw_metaworld"] = statistics.median(raw_metaworld_step_rate(name, steps) for _ in range(repeats))
@@ -48,7 +48,7 @@ def bench_env(envs: list[str] | None = None, steps: int | None = None, repeats: 
     results = {}
     log(f"{'env':<24}{'env steps/s':>14}{'wrapped':>12}{'overhead':>10}{'raw metaworld':>16}{'wrapped/raw':>13}")
     for name in envs:
-        n = steps or (50_000 if name == "tabletop_manipulation" else 2_000)
+        n = steps or env_info(name).bench_steps
         r = env_rates(name, n, repeats)
         results[name] = r
         over = r["env"] / r["train_wrapped"] - 1.0

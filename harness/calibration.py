@@ -14,9 +14,12 @@ import os
 import platform
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import torch
+
+if TYPE_CHECKING:
+    from harness.plan import RunSpec
 
 WARMUP, MEASURE = 120, 120  # seed-phase steps (no updates), then timed steps with updates
 
@@ -40,9 +43,9 @@ def machine() -> str:
     return f"{cpu} | torch {torch.__version__}"
 
 
-def key(group: dict[str, Any], threads: int) -> str:
-    return "|".join([machine(), group["device"], f"threads={threads}", group.get("algo_class", group["algo"]),
-                     group["env"], f"members={len(group['seeds'])}", group["config_hash"]])
+def key(group: RunSpec, threads: int) -> str:
+    return "|".join([machine(), group.device, f"threads={threads}", group.algo_class, group.env,
+                     f"members={len(group.seeds)}", group.config_hash])
 
 
 def read_cache() -> dict[str, float]:
@@ -53,7 +56,7 @@ def read_cache() -> dict[str, float]:
         return {}
 
 
-def measure(group: dict[str, Any], threads: int) -> float:
+def measure(group: RunSpec, threads: int) -> float:
     """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O)."""
     from algorithms.api import DemoSet
     from harness.data import load_demos
@@ -61,15 +64,14 @@ def measure(group: dict[str, Any], threads: int) -> float:
     from harness.protocol import Interaction
     from harness.registry import ALGORITHMS
 
-    cls = ALGORITHMS[group.get("algo_class", group["algo"])]
-    cfg = cls.Config.from_dict({**group["config"], **({"seed_steps": WARMUP} if "seed_steps" in cls.Config.keys()
-                                                       else {})})
+    cls = ALGORITHMS[group.algo_class]
+    cfg = cls.Config.from_dict({**group.config, **({"seed_steps": WARMUP} if "seed_steps" in cls.Config.keys() else {})})
     old = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
-        algo = cls(get_spec(group["env"]), demos, cfg, list(group["seeds"]), torch.device(group["device"]))
-        inter = Interaction(group["env"], list(group["seeds"]))
+        demos = DemoSet(load_demos(group.env, "forward"), load_demos(group.env, "reverse"))
+        algo = cls(get_spec(group.env), demos, cfg, list(group.seeds), torch.device(group.device))
+        inter = Interaction(group.env, list(group.seeds))
         inter.start(algo)
         for _ in range(WARMUP + 10):
             inter.step(algo)
@@ -81,7 +83,7 @@ def measure(group: dict[str, Any], threads: int) -> float:
         torch.set_num_threads(old)
 
 
-def rates(groups: list[dict[str, Any]], threads: int, calibrate: bool, log=print) -> list[float | None]:
+def rates(groups: list[RunSpec], threads: int, calibrate: bool, log=print) -> list[float | None]:
     """Steps/s per member of each group: cached, or measured now when ``calibrate`` (and cached), else None."""
     from harness.data import atomic_write_bytes
 
@@ -89,7 +91,7 @@ def rates(groups: list[dict[str, Any]], threads: int, calibrate: bool, log=print
     for g in groups:
         k = key(g, threads)
         if k not in cache and calibrate:
-            log(f"  calibrating {g['env']}/{g['algo']} (members={len(g['seeds'])}, {threads} thread(s)) ...")
+            log(f"  calibrating {g.env}/{g.algo} (members={len(g.seeds)}, {threads} thread(s)) ...")
             cache[k], dirty = measure(g, threads), True
         out.append(cache.get(k))
     if dirty:

@@ -36,15 +36,13 @@ def _csv(v: str | None) -> list[str] | None:
 
 def cmd_list(args) -> int:
     from harness.envs import ENVS
-    from harness.registry import ALGORITHMS, PLANNED
+    from harness.registry import ALGORITHMS
     from harness.suites import list_suites, load_suite
 
     print("algorithms:")
     for name, cls in ALGORITHMS.items():
         doc = (cls.__doc__ or "").strip().splitlines()[0]
         print(f"  {name:<14} {doc}")
-    for name in PLANNED:
-        print(f"  {name:<14} (not registered yet)")
     print("envs:")
     for name in ENVS:
         print(f"  {name}")
@@ -65,15 +63,16 @@ def cmd_data(args) -> int:
         from harness.envs.experts import generate_demos
 
         ov = parse_overrides(args.overrides, {"env", "envs", "out", "seed"})
-        envs = _csv(ov.get("envs") or ov.get("env")) or list(ENVS)
+        envs = _csv(ov.get("envs") or ov.get("env")) or [e for e, info in ENVS.items() if info.experts]
         for e in envs:
             if e not in ENVS:
                 raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+            if not ENVS[e].experts:
+                raise UsageError(f"env {e!r} has no scripted experts (its EnvInfo.experts): no scripted demos")
         out = Path(ov["out"]) if "out" in ov else data_mod.cache_dir()
         seed = optional_integer("seed", ov.get("seed"), 0)
-        counts = {"tabletop_manipulation": (12, 12), "sawyer_door": (5, 5), "sawyer_peg": (10, 20)}
         for e in envs:
-            for direction, n in zip(data_mod.DIRECTIONS, counts[e]):
+            for direction, n in zip(data_mod.DIRECTIONS, ENVS[e].scripted_demos):
                 arrays = generate_demos(e, direction, n, seed)
                 path = out / "demos" / e / f"{direction}.npz"
                 data_mod.save_demos(path, arrays, source="scripted")

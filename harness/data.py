@@ -25,9 +25,13 @@ from pathlib import Path
 
 import numpy as np
 
+from algorithms.api import DEMO_FIELDS
+
+#: the envs whose demonstrations EARL's repository publishes (what ``harness data fetch`` downloads): a fact of that
+#: repository, like the paths below. The env registry is ``harness.envs.ENVS`` (which imports this module for the
+#: assets); any registered env's demos are read from ``demos/<env>/`` of the data directory (docs/extending.md).
 ENV_NAMES = ("tabletop_manipulation", "sawyer_door", "sawyer_peg")
 DIRECTIONS = ("forward", "reverse")
-DEMO_KEYS = ("observations", "actions", "rewards", "terminals", "next_observations")
 EARL_REPO_URL = "https://raw.githubusercontent.com/architsharma97/earl_benchmark/main"
 
 
@@ -116,7 +120,7 @@ class Demos:
         return [slice(int(a), int(b)) for a, b in zip(starts, ends)]
 
     def trajectories(self) -> list[dict[str, np.ndarray]]:
-        return [{k: getattr(self, k)[sl] for k in DEMO_KEYS} for sl in self.trajectory_slices()]
+        return [{k: getattr(self, k)[sl] for k in DEMO_FIELDS} for sl in self.trajectory_slices()]
 
 
 def demos_fingerprint(env: str) -> dict[str, str]:
@@ -134,20 +138,27 @@ def demo_path(env: str, direction: str, data_dir: Path | None = None) -> Path:
 
 
 def load_demos(env: str, direction: str = "forward", data_dir: str | os.PathLike | None = None) -> Demos:
-    """Load EARL demonstrations (``direction`` forward or reverse) into a :class:`Demos`."""
-    if env not in ENV_NAMES:
-        raise ValueError(f"unknown env {env!r}; known: {', '.join(ENV_NAMES)}")
+    """Load the demonstrations of ``env`` (``direction`` forward or reverse) into a :class:`Demos`: EARL's, or any
+    in the same layout (``demos/<env>/<direction>.npz``, e.g. written by ``harness data scripted``)."""
+    if not env or env != Path(env).name or env.startswith("."):
+        raise ValueError(f"bad env name {env!r}: a registered env's short name")
     if direction not in DIRECTIONS:
         raise ValueError(f"unknown demo direction {direction!r}; known: forward, reverse")
-    root = Path(data_dir) if data_dir else find_data_dir(f"demos/{env}/{direction}.npz")
+    # an env outside EARL's: `harness data fetch` cannot bring its demos, say what can
+    hint = "" if env in ENV_NAMES else (f" ({env!r} is not an EARL env: write its demos with `harness data scripted "
+                                        f"env={env}` or into demos/{env}/ of the data directory; docs/extending.md)")
+    try:
+        root = Path(data_dir) if data_dir else find_data_dir(f"demos/{env}/{direction}.npz")
+    except DataNotFoundError as e:
+        raise DataNotFoundError(f"{e}{hint}") from None
     path = root / "demos" / env / f"{direction}.npz"
     if not path.exists():
-        raise DataNotFoundError(f"demonstrations not found: {path}")
+        raise DataNotFoundError(f"demonstrations not found: {path}{hint}")
     with np.load(path) as z:
-        missing = [k for k in DEMO_KEYS if k not in z]
+        missing = [k for k in DEMO_FIELDS if k not in z]
         if missing:
             raise DataNotFoundError(f"{path} lacks keys {missing}")
-        arr = {k: z[k] for k in DEMO_KEYS}
+        arr = {k: z[k] for k in DEMO_FIELDS}
         source = str(z["source"]) if "source" in z else "earl"
     return Demos(
         env=env,
@@ -163,7 +174,7 @@ def load_demos(env: str, direction: str = "forward", data_dir: str | os.PathLike
 
 def save_demos(path: Path, arrays: dict[str, np.ndarray], source: str) -> None:
     """Write demos in EARL's npz layout, atomically (rewards/terminals as (N, 1))."""
-    out = {k: np.asarray(arrays[k]) for k in DEMO_KEYS}
+    out = {k: np.asarray(arrays[k]) for k in DEMO_FIELDS}
     out["rewards"] = out["rewards"].reshape(-1, 1).astype(np.float32)
     out["terminals"] = out["terminals"].reshape(-1, 1).astype(bool)
     for k in ("observations", "actions", "next_observations"):
@@ -222,10 +233,10 @@ class _NumpyOnlyUnpickler(pickle.Unpickler):
 
 def demo_pickle_to_arrays(raw: bytes) -> dict[str, np.ndarray]:
     d = _NumpyOnlyUnpickler(io.BytesIO(raw)).load()
-    missing = [k for k in DEMO_KEYS if k not in d]
+    missing = [k for k in DEMO_FIELDS if k not in d]
     if missing:
         raise ValueError(f"demo pickle lacks keys {missing}")
-    return {k: np.asarray(d[k]) for k in DEMO_KEYS}
+    return {k: np.asarray(d[k]) for k in DEMO_FIELDS}
 
 
 def remote_demo_path(env: str, direction: str) -> str:

@@ -31,7 +31,7 @@ import math
 import os
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
@@ -40,39 +40,8 @@ import torch
 
 from algorithms.api import Algorithm
 from harness.envs import make_env, make_train_env
-from harness.results import TRAIN_FILE, RunResults, run_dir, write_status
-
-CHECKPOINT_FILE = "checkpoint.pt"
-
-
-@dataclass
-class RunSpec:
-    """One group of runs: everything that determines its results."""
-
-    suite: str
-    env: str
-    algo: str
-    seeds: list[int]
-    steps: int
-    eval_every: int = 10_000
-    eval_episodes: int = 10
-    checkpoint_every: int = 50_000
-    log_every: int = 1000  # training diagnostics (Algorithm.metrics) into train.parquet; divides eval_every
-    device: str = "cpu"
-    results: str = "results"
-    meta: dict[str, Any] = field(default_factory=dict)  # config hash, git sha, demo source, ...
-
-    def member_dirs(self) -> list[Path]:
-        return [run_dir(Path(self.results), self.suite, self.env, self.algo, s) for s in self.seeds]
-
-    def checkpoint_path(self) -> Path:
-        return checkpoint_path(Path(self.results), self.suite, self.env, self.algo, self.seeds)
-
-
-def checkpoint_path(results: Path, suite: str, env: str, algo: str, seeds: list[int]) -> Path:
-    """Where the group of ``seeds`` (trained together, E = len(seeds)) keeps its one checkpoint."""
-    tag = "-".join(str(s) for s in seeds)
-    return results / suite / env / algo / "checkpoints" / f"seeds={tag}" / CHECKPOINT_FILE
+from harness.plan import RunSpec
+from harness.results import TRAIN_FILE, RunResults, write_status
 
 
 @dataclass

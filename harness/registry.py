@@ -34,6 +34,3 @@ ALGORITHMS: dict[str, type[Algorithm]] = {
     "risc": RISC,
     "risc_no_tab": RISCNoTAB,
 }
-
-#: method names that suites may list before they are implemented (none left)
-PLANNED: tuple[str, ...] = ()

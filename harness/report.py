@@ -29,7 +29,10 @@ from pathlib import Path
 import pandas as pd
 
 from harness import analysis as A
+from harness.labels import algo_label, env_label, method_color, order_algos, order_envs
+from harness.stats import aggregate_scores
 from harness.suites import ConfigError, load_suite
+from harness.tables import table1, table1_csv, table1_latex, table1_markdown
 from harness.words import integer as parse_int
 from harness.words import parse_words
 
@@ -45,8 +48,8 @@ def parse(overrides: list[str]) -> dict[str, str]:
 
 
 def algo_colors(algos) -> dict[str, str]:
-    """The fixed colour of each method (:data:`harness.analysis.METHOD_COLORS`, the dashboard's too)."""
-    return {a: A.method_color(a) for a in algos}
+    """The fixed colour of each method (:data:`harness.labels.METHOD_COLORS`, the dashboard's too)."""
+    return {a: method_color(a) for a in algos}
 
 
 def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: str = "deployed_success"):
@@ -55,8 +58,8 @@ def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: st
     import matplotlib
     from matplotlib.figure import Figure
 
-    envs = A.order_envs(curves["env"])
-    algos = A.order_algos(curves["algo"])
+    envs = order_envs(curves["env"])
+    algos = order_algos(curves["algo"])
     colors = algo_colors(list(algos) + (list(published["algo"].unique()) if published is not None else []))
     ncols = min(3, max(len(envs), 1))
     nrows = math.ceil(len(envs) / ncols) if envs else 1
@@ -75,18 +78,18 @@ def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: st
                 if g.empty:
                     continue
                 x = g["step"].to_numpy() / scale
-                (h,) = ax.plot(x, g["mean"], color=colors[algo], lw=1.6, label=A.algo_label(algo))
+                (h,) = ax.plot(x, g["mean"], color=colors[algo], lw=1.6, label=algo_label(algo))
                 ax.fill_between(x, g["mean"] - g["se"], g["mean"] + g["se"], color=colors[algo], alpha=0.2, lw=0)
-                handles.setdefault(A.algo_label(algo), h)
+                handles.setdefault(algo_label(algo), h)
             if published is not None and len(published):
                 p = published[(published["env"] == env) & published["algo"].isin(algos) & (published["step"] <= xmax)]
                 for (src, algo), g in p.groupby(["source", "algo"]):
                     g = g.sort_values("step")
-                    label = f"{A.algo_label(algo)} ({src})"
+                    label = f"{algo_label(algo)} ({src})"
                     (h,) = ax.plot(g["step"] / scale, g["mean"], color=colors[algo], lw=1.2,
                                    dashes=dashes.get(src, (2, 2)), label=label)
                     handles.setdefault(label, h)
-            ax.set_title(A.env_label(env))
+            ax.set_title(env_label(env))
             ax.set_xlabel(f"Environment steps ({unit})")
             ax.grid(alpha=0.25, lw=0.5)
             if metric == "deployed_success":
@@ -216,14 +219,14 @@ def report_cli(overrides: list[str]) -> int:
         fig.savefig(p, dpi=200 if ext == "png" else None, bbox_inches="tight")
         written.append(p)
 
-    t = A.table1(df, step=step)
-    for name, text in (("table1.md", A.table1_markdown(t)), ("table1.tex", A.table1_latex(t)),
-                       ("table1.csv", A.table1_csv(t))):
+    t = table1(df, step=step)
+    for name, text in (("table1.md", table1_markdown(t)), ("table1.tex", table1_latex(t)),
+                       ("table1.csv", table1_csv(t))):
         (out / name).write_text(text)
         written.append(out / name)
 
     scores = A.final_scores(df, step=step)
-    agg = A.aggregate_scores(scores)
+    agg = aggregate_scores(scores)
     agg.to_csv(out / "aggregates.csv", index=False)
     written.append(out / "aggregates.csv")
     if is_cells_suite(suite):

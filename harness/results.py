@@ -36,11 +36,36 @@ META_COLUMNS = ["source", "config_hash", "git_sha", "demo_source", "device", "me
 METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions", "steps_per_s", "wall_s")
 PUBLISHED_METRICS = {"deployed": "deployed_success", "continuing_cumulative_reward": "continuing_reward"}
 EVALS_FILE, RUN_FILE, STATUS_FILE = "evals.parquet", "run.yaml", "status.json"
+CHECKPOINT_FILE = "checkpoint.pt"  # one per group: <results>/<suite>/<env>/<algo>/checkpoints/seeds=<a-b-..>/
 TRAIN_FILE = "train.parquet"  # training diagnostics (Algorithm.metrics every log_every steps), same columns
 
 
 def run_dir(results: Path, suite: str, env: str, algo: str, seed: int) -> Path:
     return Path(results) / suite / env / algo / f"seed={seed}"
+
+
+def parse_run_dir(path: Path, results: Path) -> dict[str, Any] | None:
+    """The inverse of :func:`run_dir`: the ``suite, env, algo, seed`` of the run directory ``path`` under
+    ``results`` (``run_dir(results, **parse_run_dir(path, results)) == path``), or None when ``path`` is no run
+    directory (its last part is not ``seed=<k>``). A suite nested in folders (``tuning/<study>/...``) is named by
+    all of them. Lenient for display: below the results root (``results`` a suite's folder, say) the parts above
+    it are None, and so is the seed of a ``seed=`` that is no integer."""
+    parts = Path(path).relative_to(results).parts
+    if not parts or not parts[-1].startswith("seed="):
+        return None
+    try:
+        seed: int | None = int(parts[-1].split("=", 1)[1])
+    except ValueError:
+        seed = None
+    rest = parts[:-1]
+    return {"suite": "/".join(rest[:-2]) if len(rest) >= 3 else None, "env": rest[-2] if len(rest) >= 2 else None,
+            "algo": rest[-1] if rest else None, "seed": seed}
+
+
+def checkpoint_path(results: Path, suite: str, env: str, algo: str, seeds: list[int]) -> Path:
+    """Where the group of ``seeds`` (trained together, E = len(seeds)) keeps its one checkpoint."""
+    tag = "-".join(str(s) for s in seeds)
+    return Path(results) / suite / env / algo / "checkpoints" / f"seeds={tag}" / CHECKPOINT_FILE
 
 
 def _parquet_bytes(df: pd.DataFrame) -> bytes:
@@ -111,8 +136,12 @@ def update_status(directory: Path, **fields: Any) -> None:
     write_status(directory, **{**old, **fields})
 
 
-def read_status(directory: Path) -> dict[str, Any] | None:
+def read_status(directory: Path, strict: bool = False) -> dict[str, Any] | None:
+    """The run's ``status.json``; None without one, and None for an unreadable one too unless ``strict``, which
+    raises its OSError / ValueError instead (for a caller that says why)."""
     p = Path(directory) / STATUS_FILE
+    if strict:
+        return json.loads(p.read_text()) if p.exists() else None
     try:
         return json.loads(p.read_text())
     except (OSError, ValueError):

@@ -21,7 +21,7 @@ import subprocess
 import sys
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -29,9 +29,10 @@ import numpy as np
 import torch
 import yaml
 
+from harness.envs import ENVS
+from harness.plan import Plan, RunSpec
 from harness.suites import (
     ConfigError,
-    Plan,
     as_plain,
     check_all_keys,
     check_name,
@@ -39,18 +40,18 @@ from harness.suites import (
     load_suite,
     resolve_algo_config,
 )
+from harness.words import boolean, names, parse_words
 from harness.words import integer as _int
-from harness.words import names, parse_words
 
 #: every key=value word of ``harness run``: (default, meaning); ``harness run --help`` prints this table
 RUN_KEYS: dict[str, tuple[str, str]] = {
     "suite": ("-", "a suite in suites/ or a path to a suite YAML (its name names the results directory)"),
     "algo": ("-", "algorithm(s), comma-separated (ad hoc; with a suite of cells: selects cells)"),
     "algos": ("-", "same as algo"),
-    "env": ("-", "env(s), comma-separated: tabletop_manipulation, sawyer_door, sawyer_peg"),
+    "env": ("-", f"env(s), comma-separated: {', '.join(ENVS)}"),
     "envs": ("-", "same as env"),
     "seeds": ("1", "a count (seeds 0..n-1) or a comma list of distinct seeds"),
-    "steps": ("3M/5M/8M per env", "training steps per run"),
+    "steps": ("/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env", "training steps per run"),
     "eval_every": ("10000", "steps between deployed-policy evaluations"),
     "eval_episodes": ("10", "episodes per evaluation"),
     "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every)"),
@@ -67,11 +68,12 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
 #: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
 MAX_STEPS, MAX_SEEDS, MAX_SEED, MAX_MEMBERS, MAX_EPISODES, MAX_WORKERS = 10**9, 1000, 2**31 - 1, 1024, 10_000, 1024
 BACKENDS = ("local", "ray")
-DEFAULT_STEPS = {"tabletop_manipulation": 3_000_000, "sawyer_door": 5_000_000, "sawyer_peg": 8_000_000}
+DEFAULT_STEPS = {name: e.default_steps for name, e in ENVS.items()}  # each env's EnvInfo.default_steps
 PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
 
 
-def _seeds(v: Any) -> list[int]:
+def parse_seeds(v: Any) -> list[int]:
+    """``seeds=``: a count n (seeds 0..n-1) or a comma list (or YAML list) of distinct seeds."""
     if isinstance(v, (list, tuple)) or (isinstance(v, str) and "," in v):
         seeds = [_int("seeds", x, 0, MAX_SEED) for x in (v if isinstance(v, (list, tuple)) else v.split(","))]
         if len(set(seeds)) != len(seeds):
@@ -82,12 +84,14 @@ def _seeds(v: Any) -> list[int]:
     return list(range(_int("seeds", v, 1, MAX_SEEDS)))
 
 
-def _device(v: str) -> str:
+def check_device(v: str, local: bool = True) -> str:
+    """A torch device name; with ``local``, CUDA must be available here (a Ray cluster's GPUs need not be visible
+    from the driver)."""
     try:
         dev = torch.device(v)
     except RuntimeError:
         raise ConfigError(f"device must be a torch device such as cpu or cuda:0, got {v!r}") from None
-    if dev.type == "cuda" and not torch.cuda.is_available():
+    if local and dev.type == "cuda" and not torch.cuda.is_available():
         raise ConfigError(f"device {v!r} requested but CUDA is not available on this machine")
     return v
 
@@ -131,28 +135,87 @@ class Unit:
     config: dict[str, Any]
 
 
+@dataclass(frozen=True)
+class RunRequest:
+    """What a ``harness run`` command asks for, parsed once from its words (:meth:`from_words`), or built directly
+    (``harness tune`` makes one per trial from the sampled parameters). ``None``: the suite's value (or the default).
+    ``config`` holds algorithm settings by scope (``{"all" | algo: {key: value}}``); ``study``/``trial`` mark a tuning
+    trial (its runs go under the suite ``tune_<study>`` and carry both in their metadata)."""
+
+    suite: str | None = None
+    algos: tuple[str, ...] = ()
+    envs: tuple[str, ...] = ()
+    seeds: tuple[int, ...] | None = None
+    steps: int | None = None
+    eval_every: int | None = None
+    eval_episodes: int | None = None
+    checkpoint_every: int | None = None
+    log_every: int | None = None
+    members: int | None = None
+    workers: int | None = None
+    device: str = "cpu"
+    results: str = "results"
+    backend: str = "local"
+    ray_address: str | None = None
+    calibrate: bool = True
+    config: dict[str, dict[str, Any]] = field(default_factory=dict)
+    study: str | None = None
+    trial: int | None = None
+
+    @classmethod
+    def from_words(cls, words: list[str]) -> "RunRequest":
+        """Parse and check the words of ``harness run`` (one line naming the first problem)."""
+        from harness.registry import ALGORITHMS
+
+        for w in words:  # name the unknown algorithm of an override, not just its scope
+            scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
+            if scope is not None and scope != "all" and scope not in ALGORITHMS:
+                raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
+        ov, config = parse_words(words, RUN_KEYS, scope=lambda s: s == "all" or s in ALGORITHMS)
+        for a, b in (("algo", "algos"), ("env", "envs")):
+            if a in ov and b in ov:
+                raise ConfigError(f"give {a}= or {b}=, not both")
+        backend = ov.get("backend", "local")
+        if backend not in BACKENDS:
+            raise ConfigError(f"unknown backend {backend!r}; known backends: {', '.join(BACKENDS)}")
+        if "ray_address" in ov and backend != "ray":
+            raise ConfigError("ray_address is only used with backend=ray")
+        device = check_device(ov.get("device", "cpu"), local=not (backend == "ray" and ov.get("ray_address")))
+
+        def opt(key: str, lo: int, hi: int) -> int | None:
+            return _int(key, ov[key], lo, hi) if key in ov else None
+
+        return cls(
+            suite=ov.get("suite"), algos=tuple(names("algo", ov.get("algos") or ov.get("algo") or [])),
+            envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
+            seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps", 1, MAX_STEPS),
+            eval_every=opt("eval_every", 1, MAX_STEPS), eval_episodes=opt("eval_episodes", 1, MAX_EPISODES),
+            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
+            members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
+            results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
+            calibrate=boolean("calibrate", ov.get("calibrate", "true")), config=config,
+        )
+
+
 def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
-    from harness.envs import ENVS
-    from harness.registry import ALGORITHMS, PLANNED
+    from harness.registry import ALGORITHMS
 
     for e in envs:
         if e not in ENVS:
             raise ConfigError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
-    unknown = [a for a in algos if a not in ALGORITHMS and a not in PLANNED]
+    unknown = [a for a in algos if a not in ALGORITHMS]
     if unknown:
         raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
 
 
-def _product_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] | None) -> tuple[list[Unit], list[str]]:
+def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env."""
-    from harness.registry import ALGORITHMS
-
-    algos = names("algo", ov.get("algos") or ov.get("algo") or suite.get("algos") or [])
-    envs = names("env", ov.get("envs") or ov.get("env") or suite.get("envs") or [])
+    algos = list(req.algos) or names("algo", suite.get("algos") or [])
+    envs = list(req.envs) or names("env", suite.get("envs") or [])
     _check_envs_algos(envs, algos)
-    seeds = seeds_ov if seeds_ov is not None else _seeds(suite.get("seeds", 1))
+    seeds = list(req.seeds) if req.seeds is not None else parse_seeds(suite.get("seeds", 1))
     members = _int("members", suite.get("members", 1), 1, MAX_MEMBERS)
-    steps_cfg = ov.get("steps", suite.get("steps", DEFAULT_STEPS))
+    steps_cfg = req.steps if req.steps is not None else suite.get("steps", DEFAULT_STEPS)
     units = []
     for env in envs:
         if isinstance(steps_cfg, dict):
@@ -161,21 +224,20 @@ def _product_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int
             steps = _int(f"steps[{env}]", steps_cfg[env], 1, MAX_STEPS)
         else:
             steps = _int("steps", steps_cfg, 1, MAX_STEPS)
-        units += [Unit(env, a, a, steps, seeds, members, {}) for a in algos if a in ALGORITHMS]
-    return units, [a for a in algos if a not in ALGORITHMS]
+        units += [Unit(env, a, a, steps, seeds, members, {}) for a in algos]
+    return units
 
 
 CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "checks"}
 
 
-def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] | None) -> tuple[list[Unit], list[str]]:
+def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     """A suite of ``cells`` (each its own algorithm, env, budget and seeds); ``algo=``/``env=`` select cells (by
     algorithm or cell name), ``seeds=``/``steps=`` replace every cell's."""
     cells = suite["cells"]
     if not isinstance(cells, list) or not cells:
         raise ConfigError("suite key 'cells' must be a non-empty list of {algo, env, steps, ...} mappings")
-    pick_algos = set(names("algo", ov.get("algos") or ov.get("algo") or []))
-    pick_envs = set(names("env", ov.get("envs") or ov.get("env") or []))
+    pick_algos, pick_envs = set(req.algos), set(req.envs)
     units, seen = [], set()
     for n, c in enumerate(cells):
         where = f"cell {n + 1} of suite 'cells'"
@@ -194,103 +256,82 @@ def _cell_units(suite: dict[str, Any], ov: dict[str, str], seeds_ov: list[int] |
             raise ConfigError(f"{where}: config must map keys of {algo!r} to values")
         if pick_algos and not pick_algos & {algo, name} or pick_envs and env not in pick_envs:
             continue
-        seeds = seeds_ov if seeds_ov is not None else _seeds(c.get("seeds", suite.get("seeds", 1)))
-        steps = _int(f"steps of {where}", ov.get("steps", c["steps"]), 1, MAX_STEPS)
+        seeds = list(req.seeds) if req.seeds is not None else parse_seeds(c.get("seeds", suite.get("seeds", 1)))
+        steps = req.steps if req.steps is not None else _int(f"steps of {where}", c["steps"], 1, MAX_STEPS)
         members = _int(f"members of {where}", c.get("members", suite.get("members", len(seeds))), 1, MAX_MEMBERS)
         units.append(Unit(env, name, algo, steps, seeds, members, dict(config)))
     if not units:
         raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(pick_algos)) or '*'} "
                           f"env={','.join(sorted(pick_envs)) or '*'}")
-    return units, []
+    return units
 
 
-def build_plan(words: list[str]) -> Plan:
-    """Validate the overrides and resolve them into run groups (nothing is written)."""
+def build_plan(req: RunRequest) -> Plan:
+    """Resolve a request into run groups, checking everything (suite, algorithms, envs, configs, data, results
+    directories); nothing is written. :func:`plan_words` does it for the words of a command."""
     from harness.data import load_demos
     from harness.registry import ALGORITHMS
 
-    for w in words:  # name the unknown algorithm of an override, not just its scope
-        scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
-        if scope is not None and scope != "all" and scope not in ALGORITHMS:
-            raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
-    ov, algo_ov = parse_words(words, RUN_KEYS, scope=lambda s: s == "all" or s in ALGORITHMS)
-    for a, b in (("algo", "algos"), ("env", "envs")):
-        if a in ov and b in ov:
-            raise ConfigError(f"give {a}= or {b}=, not both")
-
-    if "suite" in ov:
-        suite_name, suite = load_suite(ov["suite"])
+    if req.suite is not None:
+        suite_name, suite = load_suite(req.suite)
     else:
-        if not (ov.get("algo") or ov.get("algos")) or not (ov.get("env") or ov.get("envs")):
+        if not req.algos or not req.envs:
             raise ConfigError("give suite=NAME, or algo=... and env=... for an ad-hoc run")
         suite_name, suite = "adhoc", {}
+    if req.study is not None:
+        suite_name = f"tune_{req.study}"
 
-    seeds_ov = _seeds(ov["seeds"]) if "seeds" in ov else None
-    members_ov = _int("members", ov["members"], 1, MAX_MEMBERS) if "members" in ov else None
-    eval_every = _int("eval_every", ov.get("eval_every", suite.get("eval_every", 10_000)), 1, MAX_STEPS)
-    eval_episodes = _int("eval_episodes", ov.get("eval_episodes", suite.get("eval_episodes", 10)), 1, MAX_EPISODES)
-    ckpt = _int("checkpoint_every", ov.get("checkpoint_every", suite.get("checkpoint_every", 50_000)), 1, MAX_STEPS)
+    def value(key: str, default: int, hi: int) -> int:
+        given = getattr(req, key)
+        return _int(key, given if given is not None else suite.get(key, default), 1, hi)
+
+    eval_every, eval_episodes = value("eval_every", 10_000, MAX_STEPS), value("eval_episodes", 10, MAX_EPISODES)
+    ckpt = value("checkpoint_every", 50_000, MAX_STEPS)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
-    log_every = _int("log_every", ov.get("log_every", suite.get("log_every", min(1000, eval_every))), 1, MAX_STEPS)
+    log_every = value("log_every", min(1000, eval_every), MAX_STEPS)
     if eval_every % log_every:
         raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
-    backend = ov.get("backend", "local")
-    if backend not in BACKENDS:
-        raise ConfigError(f"unknown backend {backend!r}; known backends: {', '.join(BACKENDS)}")
-    if "ray_address" in ov and backend != "ray":
-        raise ConfigError("ray_address is only used with backend=ray")
-    # a Ray cluster's GPUs need not be visible from the driver: only check CUDA for local execution
-    device = ov.get("device", "cpu")
-    if not (backend == "ray" and ov.get("ray_address")):
-        device = _device(device)
-    results = ov.get("results", "results")
     suite_cfg = suite.get("config") or {}
     if not isinstance(suite_cfg, dict):
         raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
 
-    if "cells" in suite:
-        units, unregistered = _cell_units(suite, ov, seeds_ov)
-    else:
-        units, unregistered = _product_units(suite, ov, seeds_ov)
-    plan = Plan(suite_name, unregistered=unregistered)
+    units = (_cell_units if "cells" in suite else _product_units)(suite, req)
     selected = {u.algo_class for u in units}
-    stray = sorted(set(algo_ov) - selected - {"all"})
+    stray = sorted(set(req.config) - selected - {"all"})
     if stray:
         raise ConfigError(f"override(s) for {', '.join(stray)} match no selected algorithm "
                           f"(selected: {', '.join(sorted(selected)) or 'none'})")
-    check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, algo_ov)
+    check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, req.config)
     protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
+    sha = git_sha()
+    groups: list[RunSpec] = []
     for u in units:
         fwd = load_demos(u.env, "forward")  # fails early, with one line, if the data is missing
         cls = ALGORITHMS[u.algo_class]
         cell_layer = {u.algo_class: u.config} if u.config else {}
-        cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, algo_ov)
-        cfg_plain = as_plain(cfg)
+        cfg_plain = as_plain(resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config))
         ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
         if u.name != u.algo_class:
             ident["algo_class"] = u.algo_class
         h = config_hash(ident)
-        members = members_ov or u.members
-        for i in range(0, len(u.seeds), members):
-            plan.groups.append(
-                {
-                    "suite": suite_name, "env": u.env, "algo": u.name, "algo_class": u.algo_class,
-                    "seeds": u.seeds[i : i + members], "steps": u.steps, "eval_every": eval_every,
-                    "eval_episodes": eval_episodes, "checkpoint_every": ckpt, "log_every": log_every,
-                    "device": device, "results": results,
-                    "config": cfg_plain, "config_hash": h, "demo_source": fwd.source,
-                }
-            )
-    workers = _int("workers", ov.get("workers", os.cpu_count() or 1), 1, MAX_WORKERS)
-    plan.workers = min(workers, max(len(plan.groups), 1))
-    plan.backend, plan.ray_address = backend, ov.get("ray_address")
-    calibrate = ov.get("calibrate", "true").lower()
-    if calibrate not in ("true", "false"):
-        raise ConfigError(f"calibrate must be true or false, got {ov['calibrate']!r}")
-    plan.calibrate = calibrate == "true"
+        members = req.members or u.members
+        groups += [RunSpec(suite=suite_name, env=u.env, algo=u.name, algo_class=u.algo_class,
+                           seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
+                           eval_episodes=eval_episodes, checkpoint_every=ckpt, log_every=log_every, device=req.device,
+                           results=req.results, config=cfg_plain, config_hash=h, demo_source=fwd.source, git_sha=sha,
+                           study=req.study, trial=req.trial)
+                   for i in range(0, len(u.seeds), members)]
+    workers = req.workers or min(os.cpu_count() or 1, MAX_WORKERS)
+    plan = Plan(suite_name, groups, workers=min(workers, max(len(groups), 1)), backend=req.backend,
+                ray_address=req.ray_address, calibrate=req.calibrate)
     check_results_dirs(plan)
     return plan
+
+
+def plan_words(words: list[str]) -> Plan:
+    """The plan of a ``harness run`` command's words."""
+    return build_plan(RunRequest.from_words(words))
 
 
 def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
@@ -304,25 +345,25 @@ def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
 def check_results_dirs(plan: Plan) -> None:
     """Refuse to mix runs of a different config into an existing results directory (a config that only gained
     keys, at the defaults that keep the old behaviour, is the same config: see :func:`only_gained_keys`)."""
-    from harness.results import RUN_FILE, run_dir
+    from harness.results import RUN_FILE
 
     for g in plan.groups:
-        for s in g["seeds"]:
-            p = run_dir(Path(g["results"]), g["suite"], g["env"], g["algo"], s) / RUN_FILE
-            _check_writable(p.parent)
+        for d in g.member_dirs():
+            p = d / RUN_FILE
+            _check_writable(d)
             if p.exists():
                 old = read_run_record(p)
-                if old.get("config_hash") == g["config_hash"]:
+                if old.get("config_hash") == g.config_hash:
                     continue
-                same_protocol = all(old.get(k) == g[k] for k in ("eval_every", "eval_episodes", "demo_source"))
-                if same_protocol and isinstance(old.get("config"), dict) and only_gained_keys(old["config"], g["config"]):
-                    gained = sorted(set(g["config"]) - set(old["config"]))
+                same_protocol = all(old.get(k) == getattr(g, k) for k in ("eval_every", "eval_episodes", "demo_source"))
+                if same_protocol and isinstance(old.get("config"), dict) and only_gained_keys(old["config"], g.config):
+                    gained = sorted(set(g.config) - set(old["config"]))
                     print(f"harness: note: {p.parent}: the config gained key(s) {', '.join(gained)} since this run "
                           "started; resuming it under the new code", file=sys.stderr)
                     continue
                 raise ConfigError(
                     f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
-                    f"{g['config_hash']}); choose another results= directory or suite name"
+                    f"{g.config_hash}); choose another results= directory or suite name"
                 )
 
 
@@ -354,30 +395,19 @@ def read_run_record(p: Path) -> dict[str, Any]:
     return rec
 
 
-def run_group(group: dict[str, Any], command: str, queue=None, threads: int | None = None, should_stop=None) -> str | None:
+def run_group(spec: RunSpec, command: str, queue=None, threads: int | None = None, should_stop=None) -> str | None:
     """Run one group to completion (resuming if a checkpoint exists). Returns an error line or None.
 
     Holds the run directories' locks while it trains: raises :class:`~harness.interrupts.RunLocked` if another
     process holds one, and :class:`~harness.interrupts.RunInterrupted` after SIGINT/SIGTERM stopped it (statuses
     ``interrupted``; the last checkpoint is the resume point). ``should_stop`` (no arguments, called after every
-    evaluation) ends the run early (tuning's pruner); ``group["study"]``/``group["trial"]``, when present, fill the
-    results' metadata columns."""
+    evaluation) ends the run early (tuning's pruner)."""
     from harness import interrupts
-    from harness.interrupts import RunInterrupted, in_group, remove_stale_temp, run_locks
-    from harness.protocol import RunSpec
+    from harness.interrupts import RunInterrupted, RunLocked, in_group, remove_stale_temp, run_locks
     from harness.results import update_status
 
     if threads:
         torch.set_num_threads(threads)
-    spec = RunSpec(
-        suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"], steps=group["steps"],
-        eval_every=group["eval_every"], eval_episodes=group["eval_episodes"],
-        checkpoint_every=group["checkpoint_every"], log_every=group.get("log_every", 1000), device=group["device"],
-        results=group["results"],
-        meta={"config_hash": group["config_hash"], "git_sha": git_sha(), "demo_source": group["demo_source"],
-              "device": group["device"], "study": group.get("study"), "trial": group.get("trial")},
-    )
-    label = f"{group['env']}/{group['algo']} seeds={','.join(map(str, group['seeds']))}"
     dirs = spec.member_dirs()
     queue = queue if queue is not None else interrupts.progress_queue
 
@@ -388,24 +418,22 @@ def run_group(group: dict[str, Any], command: str, queue=None, threads: int | No
             print(msg, flush=True)
 
     try:
-        with run_locks(dirs, label), in_group():
+        with run_locks(dirs, spec.label), in_group():
             remove_stale_temp([*dirs, spec.checkpoint_path().parent])
-            _train_group(group, spec, dirs, label, command, say, should_stop)
+            _train_group(spec, command, say, should_stop)
         return None
     except KeyboardInterrupt:
         for d in dirs:
             _try_status(update_status, d, state="interrupted", steps_per_s=0.0, eta_s=math.inf)
-        raise RunInterrupted(label) from None
+        raise RunInterrupted(spec.label) from None
+    except RunLocked:
+        raise
     except Exception as e:  # noqa: BLE001 - recorded per run, the suite goes on
-        from harness.interrupts import RunLocked
-
-        if isinstance(e, RunLocked):
-            raise
         err = f"{type(e).__name__}: {' '.join(str(e).split())}"
         for d in dirs:
             _try_status(update_status, d, state="failed", steps_per_s=0.0, eta_s=math.inf, error=err,
                         traceback=traceback.format_exc())
-        return f"{label}: {err}"
+        return f"{spec.label}: {err}"
 
 
 def _try_status(write, d: Path, **fields: Any) -> None:
@@ -416,7 +444,7 @@ def _try_status(write, d: Path, **fields: Any) -> None:
         pass
 
 
-def _train_group(group, spec, dirs, label, command, say, should_stop) -> None:
+def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     from algorithms.api import DemoSet
     from harness.data import atomic_write_bytes, demos_fingerprint, load_demos
     from harness.envs import get_spec
@@ -425,19 +453,18 @@ def _train_group(group, spec, dirs, label, command, say, should_stop) -> None:
     from harness.results import RUN_FILE
 
     meta = {
-        **{k: group[k] for k in ("suite", "env", "algo", "steps", "eval_every", "eval_episodes", "device")},
-        "group_seeds": group["seeds"], "config": group["config"], "config_hash": group["config_hash"],
-        "demo_source": group["demo_source"], **demos_fingerprint(group["env"]), "command": command,
-        "git_sha": spec.meta["git_sha"], "versions": package_versions(), "python": sys.version.split()[0],
+        "suite": spec.suite, "env": spec.env, "algo": spec.algo, "steps": spec.steps, "eval_every": spec.eval_every,
+        "eval_episodes": spec.eval_episodes, "device": spec.device, "group_seeds": list(spec.seeds),
+        "config": spec.config, "config_hash": spec.config_hash, "demo_source": spec.demo_source,
+        **demos_fingerprint(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
+        "python": sys.version.split()[0],
     }
-    for d, s in zip(dirs, group["seeds"]):
+    for d, s in zip(spec.member_dirs(), spec.seeds):
         atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
-    cls = ALGORITHMS[group.get("algo_class", group["algo"])]
-    demos = DemoSet(load_demos(group["env"], "forward"), load_demos(group["env"], "reverse"))
-    cfg = cls.Config.from_dict(group["config"])
-    algo = cls(get_spec(group["env"]), demos, cfg, group["seeds"], torch.device(group["device"]))
-
-    train(spec, algo, lambda p: say(progress_line(label, p)), should_stop)
+    cls = ALGORITHMS[spec.algo_class]
+    demos = DemoSet(load_demos(spec.env, "forward"), load_demos(spec.env, "reverse"))
+    algo = cls(get_spec(spec.env), demos, cls.Config.from_dict(spec.config), list(spec.seeds), torch.device(spec.device))
+    train(spec, algo, lambda p: say(progress_line(spec.label, p)), should_stop)
 
 
 def _fmt_time(s: float) -> str:
@@ -456,21 +483,19 @@ def progress_line(label: str, p) -> str:
             f"ETA {_fmt_time(p.eta_s)}  success {succ}")
 
 
-def steps_done(group: dict[str, Any]) -> int:
-    """Env steps of ``group`` (summed over its seeds) that a run would not redo: finished runs count in full,
+def steps_done(spec: RunSpec) -> int:
+    """Env steps of the group (summed over its seeds) that a run would not redo: finished runs count in full,
     unfinished ones up to their last checkpoint (the latest multiple of ``checkpoint_every`` they reported)."""
-    from harness.protocol import checkpoint_path
-    from harness.results import read_status, run_dir
+    from harness.results import read_status
 
-    where = (Path(group["results"]), group["suite"], group["env"], group["algo"])
-    ckpt = checkpoint_path(*where, group["seeds"])
+    has_checkpoint = spec.checkpoint_path().exists()
     done = 0
-    for s in group["seeds"]:
-        st = read_status(run_dir(*where, s)) or {}
+    for d in spec.member_dirs():
+        st = read_status(d) or {}
         if st.get("state") == "done":
-            done += group["steps"]
-        elif ckpt.exists():
-            done += min(int(st.get("step", 0)) // group["checkpoint_every"] * group["checkpoint_every"], group["steps"])
+            done += spec.steps
+        elif has_checkpoint:
+            done += min(int(st.get("step", 0)) // spec.checkpoint_every * spec.checkpoint_every, spec.steps)
     return done
 
 
@@ -479,35 +504,31 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
     a few seconds per kind of group; see :mod:`harness.calibration`)."""
     from harness import calibration
 
-    steps = sum(g["steps"] * len(g["seeds"]) for g in plan.groups)
+    total = [g.steps * len(g.seeds) for g in plan.groups]
     done = [steps_done(g) for g in plan.groups]
-    left = steps - sum(done)
-    print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g['seeds']) for g in plan.groups)} run(s), "
+    steps, left = sum(total), sum(total) - sum(done)
+    print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g.seeds) for g in plan.groups)} run(s), "
           f"{steps:,} env steps in all" + (f" ({left:,} left to run; the rest is done or checkpointed)" if left < steps else "")
           + f", {plan.workers} worker(s)")
     threads = calibration.worker_threads(plan.workers)
-    todo = [g for g, d in zip(plan.groups, done) if d < g["steps"] * len(g["seeds"])]
-    rates = dict(zip(map(id, todo), calibration.rates(todo, threads, calibrate)))
-    for g, d in zip(plan.groups, done):
-        r = rates.get(id(g))
-        speed = f"  {r:,.1f} steps/s per seed" if r else ""
-        print(f"  {g['env']:<22} {g['algo']:<12} seeds={','.join(map(str, g['seeds'])):<10} steps={g['steps']:,} "
-              f"eval every {g['eval_every']:,} x {g['eval_episodes']}  config {g['config_hash']}{speed}")
-    if any(rates.get(id(g)) is None for g in todo):
+    todo = [i for i, (t, d) in enumerate(zip(total, done)) if d < t]
+    rates = dict(zip(todo, calibration.rates([plan.groups[i] for i in todo], threads, calibrate)))
+    for i, g in enumerate(plan.groups):
+        speed = f"  {rates[i]:,.1f} steps/s per seed" if rates.get(i) else ""
+        print(f"  {g.env:<22} {g.algo:<12} seeds={','.join(map(str, g.seeds)):<10} steps={g.steps:,} "
+              f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{speed}")
+    if any(rates[i] is None for i in todo):
         print("estimated time: not measured yet on this machine; `harness run ... --dry-run` measures each kind of "
               "group for a few seconds (cached)")
         return
-    work = [((g["steps"] * len(g["seeds"]) - d) // len(g["seeds"]), rates[id(g)])
-            for g, d in zip(plan.groups, done) if id(g) in rates]
+    work = [((total[i] - done[i]) // len(plan.groups[i].seeds), rates[i]) for i in todo]
     est = calibration.estimate(work, plan.workers)
     print(f"estimated time: {_fmt_time(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
           f"on this machine (evaluations add ~3%; other load on the machine slows it)")
 
 
 def run_cli(words: list[str], dry_run: bool = False) -> int:
-    plan = build_plan(words)
-    for a in plan.unregistered:
-        print(f"harness: note: algorithm {a!r} of suite {plan.suite!r} is not registered yet; skipping it", file=sys.stderr)
+    plan = plan_words(words)
     print_plan(plan, calibrate=dry_run and plan.calibrate)
     if dry_run or not plan.groups:
         return 0
@@ -517,6 +538,5 @@ def run_cli(words: list[str], dry_run: bool = False) -> int:
 
     errors = run_plan(plan, command, run_group)
     print(f"done: {len(plan.groups) - len(errors)}/{len(plan.groups)} group(s) in {_fmt_time(time.time() - t0)}; "
-          f"results in {plan.groups[0]['results']}")
+          f"results in {plan.groups[0].results}")
     return 1 if errors else 0
-

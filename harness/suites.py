@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -157,19 +157,6 @@ def check_all_keys(config_classes: list, *layers: dict[str, Any]) -> None:
 def config_hash(obj: Any) -> str:
     blob = json.dumps(obj, sort_keys=True, default=str).encode()
     return hashlib.sha256(blob).hexdigest()[:12]
-
-
-@dataclass
-class Plan:
-    """What ``harness run`` will do: one entry per (env, algo, member group)."""
-
-    suite: str
-    groups: list[dict[str, Any]] = field(default_factory=list)
-    unregistered: list[str] = field(default_factory=list)
-    workers: int = 1
-    backend: str = "local"  # local (a process pool) or ray (harness.backends)
-    ray_address: str | None = None  # a Ray cluster to join; None: start a local one
-    calibrate: bool = True  # --dry-run measures the speed of groups not measured yet (harness.calibration)
 
 
 def as_plain(cfg) -> dict[str, Any]:

@@ -35,14 +35,18 @@ import shlex
 import socket
 import sys
 import warnings
+from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
 from harness.suites import SUITES_DIR, ConfigError
 from harness.words import integer as parse_int
 from harness.words import parse_words
+
+if TYPE_CHECKING:
+    from harness.runner import RunRequest
 
 #: every key=value word of ``harness tune``: (default, meaning); ``harness tune --help`` prints this table
 TUNE_KEY_HELP: dict[str, tuple[str, str]] = {
@@ -69,7 +73,6 @@ TUNE_KEY_HELP: dict[str, tuple[str, str]] = {
     "device": ("cpu", "torch device"),
 }
 TUNE_KEYS = set(TUNE_KEY_HELP)
-PASSED_TO_RUN = ("steps", "eval_every", "eval_episodes", "checkpoint_every", "device")
 PRUNERS = ("median", "hyperband", "none")
 SAMPLERS = ("tpe", "random")
 MAX_RETRY = 3
@@ -142,13 +145,22 @@ def _fmt(v: Any) -> str:
     return str(v).lower() if isinstance(v, bool) else repr(v) if isinstance(v, float) else str(v)
 
 
+def trial_request(base: RunRequest, algo: str, params: dict[str, Any], results: str, trial: int | None = None) -> RunRequest:
+    """The run request of one trial: the study's request with the sampled parameters on top of the fixed ones."""
+    config = {**base.config, algo: {**base.config.get(algo, {}), **params}}
+    return replace(base, config=config, results=results, trial=trial)
+
+
 def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
     from harness.registry import ALGORITHMS
-    from harness.runner import build_plan
+    from harness.runner import MAX_EPISODES, MAX_STEPS, RunRequest, build_plan, check_device, parse_seeds
 
-    ov, scoped = parse_words(words, TUNE_KEYS, scope=lambda s: True)
-    algo_words = [f"{s}.{k}={v}" for s, kv in scoped.items() for k, v in kv.items()]
+    ov, fixed_config = parse_words(words, TUNE_KEYS, scope=lambda s: True)
+
+    def optional(key: str, maximum: int) -> int | None:
+        return parse_int(key, ov[key], 1, maximum) if key in ov else None
+
     algo = ov.get("algo", "medal")
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
@@ -187,7 +199,7 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     if setup["ray_address"] and setup["backend"] != "ray":
         raise ConfigError("ray_address is only used with backend=ray")
     space = load_search_space(algo, ov.get("search"))
-    fixed = {w.split("=", 1)[0].split(".", 1)[1] for w in algo_words if w.split(".", 1)[0] in (algo, "all")}
+    fixed = set(fixed_config.get(algo, {})) | set(fixed_config.get("all", {}))
     space = {k: v for k, v in space.items() if k not in fixed}
     unknown = sorted(set(space) - ALGORITHMS[algo].Config.keys())
     if unknown:
@@ -196,19 +208,24 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
         raise ConfigError("nothing to tune: every parameter of the search space is fixed on the command line")
     setup["space"] = space
 
-    n_seeds = len(seeds.split(",")) if "," in seeds else parse_int("seeds", seeds, 1)
-    run_words = [f"algo={algo}", f"env={env}", f"seeds={seeds}", f"members={n_seeds}", "workers=1"]
-    run_words += [f"{k}={ov[k]}" for k in PASSED_TO_RUN if k in ov] + algo_words
-    if setup["backend"] == "ray" and setup["ray_address"]:
-        run_words += ["backend=ray", f"ray_address={setup['ray_address']}"]  # device checked on the cluster
+    seed_list = parse_seeds(seeds)
+    ray_cluster = setup["backend"] == "ray" and setup["ray_address"]
+    base = RunRequest(
+        algos=(algo,), envs=(env,), seeds=tuple(seed_list), members=len(seed_list), workers=1,
+        steps=optional("steps", MAX_STEPS), eval_every=optional("eval_every", MAX_STEPS),
+        eval_episodes=optional("eval_episodes", MAX_EPISODES), checkpoint_every=optional("checkpoint_every", MAX_STEPS),
+        device=check_device(ov.get("device", "cpu"), local=not ray_cluster),
+        backend="ray" if ray_cluster else "local", ray_address=setup["ray_address"] if ray_cluster else None,
+        config=fixed_config, study=study,
+    )
     # validate everything (keys, values, data) with one plan of each extreme choice; nothing is written
     probe = str(Path(results) / "tuning" / study / ".validate")
     for pick in (0, -1):
         params = {k: (s["choices"][pick] if s["type"] == "categorical" else s["low"] if pick == 0 else s["high"])
                   for k, s in space.items()}
-        plan = build_plan(run_words + [f"{algo}.{k}={_fmt(v)}" for k, v in params.items()] + [f"results={probe}"])
+        plan = build_plan(trial_request(base, algo, params, probe))
     g = plan.groups[0]
-    setup.update(run_words=run_words, algo_words=algo_words, steps=g["steps"], eval_every=g["eval_every"])
+    setup.update(request=base, fixed_config=fixed_config, steps=g.steps, eval_every=g.eval_every)
     setup["command"] = " ".join(["harness", "tune", *map(shlex.quote, words)])
     return setup
 
@@ -281,9 +298,10 @@ def make_pruner(setup: dict[str, Any]):
     return optuna.pruners.NopPruner()
 
 
-def open_study(setup: dict[str, Any], create: bool):
+def open_study(setup: dict[str, Any], create: bool, storage=None):
+    """The study of ``setup`` (created when ``create`` and absent) on ``storage`` (default: a new one from setup)."""
     optuna = _optuna()
-    storage = make_storage(setup)
+    storage = storage if storage is not None else make_storage(setup)
     try:
         if create:
             study = optuna.create_study(study_name=setup["study"], storage=storage, direction="maximize",
@@ -299,7 +317,7 @@ def open_study(setup: dict[str, Any], create: bool):
     if create and "algo" not in ident:
         study.set_user_attr("algo", setup["algo"])
         study.set_user_attr("env", setup["env"])
-        study.set_user_attr("algo_words", setup["algo_words"])
+        study.set_user_attr("fixed_config", setup["fixed_config"])
     return study
 
 
@@ -325,27 +343,31 @@ def _alive(pid: int) -> bool:
         return True
 
 
-def fail_dead_local_trials(study) -> list[int]:
+def frozen_trial(study, number: int):
+    """The stored (frozen) trial ``number`` of ``study``."""
+    return next(t for t in study.get_trials(deepcopy=False) if t.number == number)
+
+
+def fail_dead_local_trials(study, storage) -> list[int]:
     """RUNNING trials started on this host by a process that no longer exists: mark them FAILED and
     enqueue a retry (the journal file's stand-in for an RDB's heartbeat). Returns their numbers."""
-    from optuna.exceptions import UpdateFinishedTrialError
     from optuna.trial import TrialState
 
     host, out = socket.gethostname(), []
-    if getattr(study._storage, "heartbeat_interval", None):
+    if isinstance(storage, _optuna().storages.RDBStorage):
         return out  # an RDB with heartbeats: Optuna fails stale trials itself (fail_stale_trials)
-    retry = _retry_callback()(MAX_RETRY, inherit_intermediate_values=True)
-    storage = study._storage
+    cls = _retry_callback()
+    retry = cls(MAX_RETRY, inherit_intermediate_values=True)
     for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
         h, _, pid = str(t.user_attrs.get("worker", "")).rpartition(":")
         if h != host or not pid.isdigit() or _alive(int(pid)):
             continue
-        try:
-            if storage.set_trial_state_values(t._trial_id, state=TrialState.FAIL):
-                retry(study, storage.get_trial(t._trial_id))
-                out.append(t.number)
-        except UpdateFinishedTrialError:
-            pass
+        study.tell(t.number, state=TrialState.FAIL, skip_if_finished=True)
+        retried = {cls.retried_trial_number(x) for x in study.get_trials(deepcopy=False)}
+        failed = frozen_trial(study, t.number)
+        if failed.state == TrialState.FAIL and t.number not in retried:  # not finished or retried meanwhile
+            retry(study, failed)
+            out.append(t.number)
     return out
 
 
@@ -361,7 +383,7 @@ def retry_interrupted_trials(study) -> list[int]:
     out = []
     for t in trials:
         if t.state == TrialState.FAIL and t.user_attrs.get("interrupted") and t.number not in retried:
-            retry(study, study._storage.get_trial(t._trial_id))
+            retry(study, t)
             out.append(t.number)
     return out
 
@@ -388,31 +410,23 @@ def trial_progress(dirs: list[Path]) -> tuple[int, float]:
 def _objective(setup: dict[str, Any], threads: int | None):
     optuna = _optuna()
     from harness.results import write_status
-    from harness.runner import build_plan, check_results_dirs, run_group
+    from harness.runner import build_plan, run_group
 
     retry_cls = _retry_callback()
 
     def objective(trial) -> float:
-        frozen = trial.study._storage.get_trial(trial._trial_id)
-        origin = retry_cls.retried_trial_number(frozen)
+        origin = retry_cls.retried_trial_number(frozen_trial(trial.study, trial.number))
         number = trial.number if origin is None else origin  # a retry resumes in the dead trial's directory
         trial.set_user_attr("worker", f"{socket.gethostname()}:{os.getpid()}")
         params = {k: suggest(trial, k, spec) for k, spec in setup["space"].items()}
         trial_dir = Path(setup["results"]) / "tuning" / setup["study"] / f"trial={number}"
         trial.set_user_attr("results", str(trial_dir))
-        words = setup["run_words"] + [f"{setup['algo']}.{k}={_fmt(v)}" for k, v in params.items()]
         try:
-            plan = build_plan(words + [f"results={trial_dir}"])
-            for g in plan.groups:
-                g.update(suite=f"tune_{setup['study']}", study=setup["study"], trial=number)
-            check_results_dirs(plan)
+            plan = build_plan(trial_request(setup["request"], setup["algo"], params, str(trial_dir), number))
         except ConfigError as e:
             raise TrialRunError(str(e)) from None
         (group,) = plan.groups
-        from harness.protocol import RunSpec
-
-        dirs = RunSpec(suite=group["suite"], env=group["env"], algo=group["algo"], seeds=group["seeds"],
-                       steps=group["steps"], results=group["results"]).member_dirs()
+        dirs = group.member_dirs()
         pruned: dict[str, Any] = {}
 
         def should_stop() -> bool:
@@ -438,7 +452,7 @@ def _objective(setup: dict[str, Any], threads: int | None):
             raise TrialRunError(err)
         if pruned:
             for d in dirs:
-                write_status(d, state="pruned", step=pruned["step"], total=group["steps"], last_success=pruned["value"])
+                write_status(d, state="pruned", step=pruned["step"], total=group.steps, last_success=pruned["value"])
             print(f"[{setup['study']}] trial {trial.number} pruned at step {pruned['step']:,} "
                   f"(mean success so far {pruned['value']:.4f})", flush=True)
             raise optuna.TrialPruned(f"pruned at step {pruned['step']}")
@@ -461,12 +475,13 @@ def tune_worker(setup: dict[str, Any], index: int, threads: int | None, env: dic
 
     if threads:
         torch.set_num_threads(threads)
-    study = open_study(setup, create=False)
-    fail_dead_local_trials(study)
+    storage = make_storage(setup)
+    study = open_study(setup, create=False, storage=storage)
+    fail_dead_local_trials(study, storage)
     optuna.storages.fail_stale_trials(study)
     if index == 0:  # one worker re-queues the interrupted trials
         retry_interrupted_trials(study)
-    study = optuna.load_study(study_name=setup["study"], storage=study._storage,
+    study = optuna.load_study(study_name=setup["study"], storage=storage,
                               sampler=make_sampler(setup, index, len(study.trials)), pruner=make_pruner(setup))
     remaining = setup["trials"] - finished(study)
     if remaining <= 0:
@@ -497,8 +512,9 @@ def best_yaml(study, setup: dict[str, Any]) -> str:
     except ValueError:
         raise ConfigError(f"study {study.study_name!r} has no complete trial yet") from None
     algo, env = study.user_attrs.get("algo", setup["algo"]), study.user_attrs.get("env", setup["env"])
-    fixed: dict[str, dict[str, Any]] = {}
-    for w in study.user_attrs.get("algo_words", []):
+    fixed: dict[str, dict[str, Any]] = {s: {k: yaml.safe_load(str(v)) for k, v in kv.items()}
+                                        for s, kv in study.user_attrs.get("fixed_config", {}).items()}
+    for w in study.user_attrs.get("algo_words", []):  # studies created before fixed_config
         k, v = w.split("=", 1)
         scope, key = k.split(".", 1)
         fixed.setdefault(scope, {})[key] = yaml.safe_load(v)
@@ -520,8 +536,9 @@ def tune_cli(words: list[str], best: bool = False) -> int:
     if best:
         print(best_yaml(open_study(setup, create=False), setup), end="")
         return 0
-    study = open_study(setup, create=True)
-    fail_dead_local_trials(study)
+    storage = make_storage(setup)
+    study = open_study(setup, create=True, storage=storage)
+    fail_dead_local_trials(study, storage)
     print(f"tuning {setup['algo']} on {setup['env']}: study {setup['study']} in {setup['storage']}, "
           f"{setup['trials']} trial(s) of {setup['steps']:,} steps, {len(setup['space'])} parameter(s), "
           f"{setup['workers']} worker(s), {setup['backend']} backend; {summary(study)}", flush=True)
@@ -534,7 +551,7 @@ def tune_cli(words: list[str], best: bool = False) -> int:
             errors: list[str] = []
             with ray_session(setup["ray_address"], n) as ray:
                 run_ray_tasks(ray, tune_worker, [(setup, i, threads, ray_env()) for i in range(n)],
-                              [f"worker {i}" for i in range(n)], ray_options(_device(setup), 1),
+                              [f"worker {i}" for i in range(n)], ray_options(setup["request"].device, 1),
                               lambda label, line: errors.append(f"{label}: {line}"))
             for e in errors:
                 print(f"harness: tune worker failed: {e}", file=sys.stderr)
@@ -553,9 +570,3 @@ def tune_cli(words: list[str], best: bool = False) -> int:
           f"storage={shlex.quote(setup['storage'])} --best")
     return 0 if done >= setup["trials"] else 1
 
-
-def _device(setup: dict[str, Any]) -> str:
-    for w in setup["run_words"]:
-        if w.startswith("device="):
-            return w.split("=", 1)[1]
-    return "cpu"

@@ -1,4 +1,5 @@
-"""harness.analysis: grids, curves, bootstrap, final performance, Table 1, IQM/PoI, run status."""
+"""harness.analysis (grids, curves, final performance), harness.stats (bootstrap, IQM/PoI), harness.tables (Table 1),
+harness.run_status and harness.results.parse_run_dir."""
 
 from __future__ import annotations
 
@@ -11,7 +12,11 @@ import pandas as pd
 import pytest
 
 from harness import analysis as A
-from harness.results import load
+from harness.labels import method_color
+from harness.results import STATUS_FILE, load, parse_run_dir, read_status, run_dir
+from harness.run_status import format_duration, run_status, status_counts
+from harness.stats import aggregate_scores, bootstrap_mean_ci, iqm, probability_of_improvement, stratified_bootstrap
+from harness.tables import PUBLISHED_TABLE1, table1, table1_csv, table1_latex, table1_markdown
 from tests import fixtures_results as F
 
 
@@ -35,19 +40,19 @@ def long(runs: dict[int, dict[int, float]], env="e", algo="a", metric="deployed_
 
 
 def test_iqm_hand_computed():
-    assert A.iqm(np.arange(1, 9)) == pytest.approx(4.5)  # drop 1,2 and 7,8 -> mean(3,4,5,6)
-    assert A.iqm([4, 1, 3, 2]) == pytest.approx(2.5)  # drop 1 and 4
-    assert A.iqm([1, 2, 3]) == pytest.approx(2.0)  # int(0.75) = 0 dropped -> plain mean
+    assert iqm(np.arange(1, 9)) == pytest.approx(4.5)  # drop 1,2 and 7,8 -> mean(3,4,5,6)
+    assert iqm([4, 1, 3, 2]) == pytest.approx(2.5)  # drop 1 and 4
+    assert iqm([1, 2, 3]) == pytest.approx(2.0)  # int(0.75) = 0 dropped -> plain mean
     x = np.random.default_rng(1).random((7, 13))
     from scipy.stats import trim_mean
 
-    assert A.iqm(x, axis=1) == pytest.approx(trim_mean(x, 0.25, axis=1))
+    assert iqm(x, axis=1) == pytest.approx(trim_mean(x, 0.25, axis=1))
 
 
 def test_stratified_bootstrap_resamples_within_tasks():
     # task A all 0, task B all 1, 2 runs each: every stratified resample holds exactly two 0s and
     # two 1s, so the IQM (mean of the middle two) is 0.5 in every resample; a pooled bootstrap would vary.
-    point, lo, hi = A.stratified_bootstrap([np.zeros(2), np.ones(2)], A.iqm, reps=500, seed=0)
+    point, lo, hi = stratified_bootstrap([np.zeros(2), np.ones(2)], iqm, reps=500, seed=0)
     assert (point, lo, hi) == (0.5, 0.5, 0.5)
 
 
@@ -55,29 +60,29 @@ def test_stratified_bootstrap_matches_exact_enumeration():
     x = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
     exact = np.array([np.mean(s) for s in itertools.product(x, repeat=5)])  # all 5^5 resamples
     e_lo, e_hi = np.percentile(exact, [2.5, 97.5])
-    point, lo, hi = A.stratified_bootstrap([x], np.mean, reps=20000, seed=0)
+    point, lo, hi = stratified_bootstrap([x], np.mean, reps=20000, seed=0)
     assert point == pytest.approx(2.0)
     assert lo == pytest.approx(e_lo, abs=0.2) and hi == pytest.approx(e_hi, abs=0.2)
-    assert A.stratified_bootstrap([x], np.mean, reps=500, seed=3) == A.stratified_bootstrap([x], np.mean, reps=500,
+    assert stratified_bootstrap([x], np.mean, reps=500, seed=3) == stratified_bootstrap([x], np.mean, reps=500,
                                                                                               seed=3)
 
 
 def test_probability_of_improvement_hand_computed():
     # X=[1,2,3] vs Y=[2,2,0]: 5 pairs X>Y, 2 ties, of 9 -> (5 + 0.5*2)/9 = 2/3
-    p, lo, hi = A.probability_of_improvement([[1, 2, 3]], [[2, 2, 0]], reps=1000)
+    p, lo, hi = probability_of_improvement([[1, 2, 3]], [[2, 2, 0]], reps=1000)
     assert p == pytest.approx(2 / 3) and lo <= p <= hi
     # a second task where X always loses (0 vs 1): average over tasks = (2/3 + 0)/2
-    p, _, _ = A.probability_of_improvement([[1, 2, 3], [0, 0]], [[2, 2, 0], [1]], reps=200)
+    p, _, _ = probability_of_improvement([[1, 2, 3], [0, 0]], [[2, 2, 0], [1]], reps=200)
     assert p == pytest.approx(1 / 3)
-    assert A.probability_of_improvement([[0.5, 0.5]], [[0.5]], reps=100) == (0.5, 0.5, 0.5)
+    assert probability_of_improvement([[0.5, 0.5]], [[0.5]], reps=100) == (0.5, 0.5, 0.5)
 
 
 def test_aggregate_scores_fixture(df):
     scores = A.final_scores(df)
-    agg = A.aggregate_scores(scores, reps=500).set_index("algo")
+    agg = aggregate_scores(scores, reps=500).set_index("algo")
     for algo in F.ALGOS:
         pooled = scores.loc[scores["algo"] == algo, "score"].to_numpy()
-        assert agg.loc[algo, "iqm"] == pytest.approx(A.iqm(pooled))
+        assert agg.loc[algo, "iqm"] == pytest.approx(iqm(pooled))
         assert agg.loc[algo, "mean"] == pytest.approx(pooled.mean())
         assert agg.loc[algo, "iqm_lo"] <= agg.loc[algo, "iqm"] <= agg.loc[algo, "iqm_hi"]
         assert agg.loc[algo, "n_envs"] == 2 and agg.loc[algo, "n_runs"] == 6
@@ -105,7 +110,7 @@ def test_bootstrap_ci_seeded_and_sane(df):
     b = A.learning_curves(df, ci=True, n_boot=300, seed=0)
     pd.testing.assert_frame_equal(a, b)
     assert (a["ci_lo"] <= a["mean"] + 1e-12).all() and (a["mean"] <= a["ci_hi"] + 1e-12).all()
-    lo, hi = A.bootstrap_mean_ci(np.full((2, 4), 0.3))
+    lo, hi = bootstrap_mean_ci(np.full((2, 4), 0.3))
     np.testing.assert_allclose([lo, hi], 0.3)
 
 
@@ -136,7 +141,7 @@ def test_tuning_rows_and_trial_runs(tmp_path):
     assert set(d.loc[tun, "suite"]) == {f"tune_{F.TUNE_STUDY}"} and not d.loc[~tun, "study"].notna().any()
     runs = A.with_runs(d[tun])["run"].unique()
     assert list(runs) == [f"tune_{F.TUNE_STUDY}/0/trial=0"]
-    st = A.run_status(tmp_path)
+    st = run_status(tmp_path)
     assert st["tuning"].sum() == 1 and st.loc[st["tuning"], "suite"].iloc[0].startswith("tuning/")
 
 
@@ -175,7 +180,7 @@ def test_final_performance_last_matched_and_step(df):
 
 
 def test_table1_beside_published(df):
-    t = A.table1(df)
+    t = table1(df)
     r = t.set_index(["algo", "env"])
     mean, se = F.expected_final("tabletop_manipulation", "medal")
     assert r.loc[("medal", "tabletop_manipulation"), "ours_mean"] == pytest.approx(mean)
@@ -188,28 +193,28 @@ def test_table1_beside_published(df):
     assert set(t[t["paper_best"] & (t["env"] == "sawyer_door")]["algo"]) == {"fbrl", "medal", "oracle"}
     assert set(t["env"]) == set(F.ENVS)  # only envs we have results for
     assert np.isnan(r.loc[("fbrl", "sawyer_door"), "ours_mean"])  # paper-only row
-    md = A.table1_markdown(t)
+    md = table1_markdown(t)
     assert "| MEDAL | **0.70 (0.06)** | **0.98 (0.02)** | -0.28 |" in md
-    tex = A.table1_latex(t)
+    tex = table1_latex(t)
     assert r"\textbf{0.70 (0.06)}" in tex and r"\begin{tabular}" in tex and "_" not in tex.replace(r"\_", "")
-    back = pd.read_csv(__import__("io").StringIO(A.table1_csv(t)))
+    back = pd.read_csv(__import__("io").StringIO(table1_csv(t)))
     assert list(back.columns) == list(t.columns) and len(back) == len(t)
-    ours_only = A.table1(df, published=None)
+    ours_only = table1(df, published=None)
     assert set(ours_only["algo"]) == set(F.ALGOS)
-    assert "paper" not in A.table1_markdown(ours_only, published=False)
+    assert "paper" not in table1_markdown(ours_only, published=False)
 
 
 def test_published_table_is_section_15():
-    assert len(A.PUBLISHED_TABLE1) == 18
-    assert A.PUBLISHED_TABLE1[("medal", "sawyer_peg")] == (0.40, 0.16)
-    assert A.PUBLISHED_TABLE1[("r3l", "sawyer_door")] == (0.54, 0.18)
+    assert len(PUBLISHED_TABLE1) == 18
+    assert PUBLISHED_TABLE1[("medal", "sawyer_peg")] == (0.40, 0.16)
+    assert PUBLISHED_TABLE1[("r3l", "sawyer_door")] == (0.54, 0.18)
 
 
 # ---------------------------------------------------------------------------- status
 
 
 def test_run_status(fixture_dir):
-    st = A.run_status(fixture_dir)
+    st = run_status(fixture_dir)
     by = st.set_index(["env", "algo", "seed"])
     assert by.loc[("sawyer_door", "medal_logc", 0), "state"] == "running"
     assert by.loc[("sawyer_door", "medal_logc", 1), "state"] == "resumed"
@@ -218,11 +223,35 @@ def test_run_status(fixture_dir):
     assert by.loc[("sawyer_door", "fbrl", 0), "error"] == F.FAILED_ERROR  # first line only
     assert by.loc[("sawyer_door", "broken", 0), "state"] == "unknown"  # corrupt parquet, no status
     assert by.loc[("tabletop_manipulation", "medal", 1), "last_success"] == pytest.approx(0.7)
-    assert A.status_counts(st) == {"running": 1, "resumed": 1, "stale": 1, "done": 15, "failed": 1, "unknown": 1}
-    later = A.run_status(fixture_dir, now=time.time() + 10 * 3600)
+    assert status_counts(st) == {"running": 1, "resumed": 1, "stale": 1, "done": 15, "failed": 1, "unknown": 1}
+    later = run_status(fixture_dir, now=time.time() + 10 * 3600)
     assert (later["state"] == "stale").sum() == 3  # running and resumed ones go stale too
-    assert A.format_duration(3725) == "1h02m" and A.format_duration(math.inf) == "?"
+    assert format_duration(3725) == "1h02m" and format_duration(math.inf) == "?"
 
+
+def test_parse_run_dir_inverts_run_dir(tmp_path):
+    for suite, env, algo, seed in [("main", "sawyer_door", "medal", 0), ("tuning/s/trial=3/tune_s", "e", "a", 12)]:
+        d = run_dir(tmp_path, suite, env, algo, seed)
+        ident = parse_run_dir(d, tmp_path)
+        assert ident == {"suite": suite, "env": env, "algo": algo, "seed": seed}
+        assert run_dir(tmp_path, **ident) == d
+    assert parse_run_dir(tmp_path / "main" / "e" / "a" / "checkpoints", tmp_path) is None
+    assert parse_run_dir(tmp_path, tmp_path) is None
+    # read below the results root (a suite's folder): what lies above it is unknown
+    assert parse_run_dir(tmp_path / "e" / "a" / "seed=1", tmp_path) == {"suite": None, "env": "e", "algo": "a",
+                                                                         "seed": 1}
+
+
+def test_run_status_names_an_unreadable_status_file(tmp_path):
+    for seed, text in ((0, "{not json"), (1, "[1, 2]")):
+        d = run_dir(tmp_path, "s", "e", "a", seed)
+        d.mkdir(parents=True)
+        (d / STATUS_FILE).write_text(text)
+    st = run_status(tmp_path).set_index("seed")
+    assert (st["state"] == "unknown").all()
+    assert st.loc[0, "error"].startswith("unreadable status.json: JSONDecodeError")
+    assert st.loc[1, "error"] == "status.json is not a JSON object"
+    assert read_status(run_dir(tmp_path, "s", "e", "a", 0)) is None  # the lenient reader
 
 def test_published_overlay_keeps_only_our_env_algo_pairs():
     """Oracle run on door only and RISC on tabletop only: the paper's RISC-on-door and oracle-on-tabletop curves
@@ -243,5 +272,5 @@ def test_every_method_has_its_own_fixed_colour_in_report_and_dashboard():
     names = list(ALGORITHMS) + ["risc_no_switching"]
     colors = algo_colors(names)
     assert len(set(colors.values())) == len(names) >= 15
-    assert A.method_color("risc_no_timeout_bootstrap") == colors["risc_no_tab"]
-    assert A.method_color("vaprl_risc_no_tab") == A.method_color("vaprl_risc_no_tab")  # stable for variants
+    assert method_color("risc_no_timeout_bootstrap") == colors["risc_no_tab"]
+    assert method_color("vaprl_risc_no_tab") == method_color("vaprl_risc_no_tab")  # stable for variants

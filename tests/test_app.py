@@ -13,7 +13,9 @@ pytest.importorskip("streamlit")
 from streamlit.testing.v1 import AppTest  # noqa: E402
 
 from harness import analysis as A  # noqa: E402
+from harness.labels import method_color  # noqa: E402
 from harness.results import load  # noqa: E402
+from harness.stats import iqm  # noqa: E402
 from tests import fixtures_results as F  # noqa: E402
 
 APP = str(Path(__file__).resolve().parent.parent / "app.py")
@@ -70,8 +72,8 @@ def test_learning_curves_tab(monkeypatch, results):
     c = at.dataframe[0].value
     assert c["ci_lo"].notna().all() and (c["step"] > 0).all()
     assert len(at.get("vega_lite_chart")) == 2
-    spec = json.loads(at.get("vega_lite_chart")[0].proto.spec)  # the report's fixed colours (harness.analysis)
-    assert all(A.method_color(a) in json.dumps(spec) for a in F.ALGOS)
+    spec = json.loads(at.get("vega_lite_chart")[0].proto.spec)  # the report's fixed colours (harness.labels)
+    assert all(method_color(a) in json.dumps(spec) for a in F.ALGOS)
 
 
 def test_table1_tab(monkeypatch, results):
@@ -97,7 +99,7 @@ def test_aggregates_tab(monkeypatch, results):
     d = load(results, warn=lambda m: None)
     scores = A.final_scores(d[~A.is_tuning(d)])  # tuning trials are left out by default
     pooled = scores.loc[scores["algo"] == "medal", "score"].to_numpy()
-    assert agg.loc["MEDAL", "iqm"] == pytest.approx(A.iqm(pooled))
+    assert agg.loc["MEDAL", "iqm"] == pytest.approx(iqm(pooled))
     assert agg.loc["MEDAL", "iqm_lo"] <= agg.loc["MEDAL", "iqm"] <= agg.loc["MEDAL", "iqm_hi"]
     poi = at.metric[0]
     assert poi.label == "P(MEDAL > naive RL)" and poi.value == "1.00"  # every medal run beats every naive run

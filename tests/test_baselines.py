@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 import torch
 
-from algorithms.api import DemoSet
+from algorithms.api import BACKWARD, FORWARD, DemoSet
 from algorithms.bc import BC, BCConfig
+from algorithms.core.nets import Stream
 from algorithms.fbrl import FBRL, FBRLConfig
 from algorithms.fbrl_vice import FBRLVICE, FBRLVICEConfig
-from algorithms.forward_backward import BACKWARD, FORWARD
 from algorithms.gail import GAILNaive, GAILNaiveConfig, gradient_penalty
 from algorithms.naive import Naive, NaiveConfig
 from algorithms.oracle import Oracle, OracleConfig
@@ -172,7 +172,7 @@ def test_naive_cuts_pseudo_episodes_with_fresh_goals_and_never_resets(demos):
         else:
             assert not _last(m.buf, "first")
     assert all(g in {tuple(x) for x in SPEC.goal_states} for g in goals) and len(set(goals)) > 1
-    rng = np.random.default_rng([0, 7])  # the member's goal stream: one draw per cut
+    rng = np.random.default_rng([0, Stream.TASK_GOALS])  # the member's goal stream: one draw per cut
     assert goals == [tuple(SPEC.goal_states[rng.integers(4)]) for _ in goals]
 
 

@@ -114,8 +114,7 @@ def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypa
 def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
     """A resumed suite's plan and time estimate count what is left: finished runs not at all, unfinished
     ones from their last checkpoint (a multiple of checkpoint_every), not from their last progress line."""
-    from harness.protocol import checkpoint_path
-    from harness.results import run_dir, write_status
+    from harness.results import checkpoint_path, run_dir, write_status
 
     where = (tmp_path, "adhoc", "sawyer_door", "medal")
     write_status(run_dir(*where, 0), state="done", step=1000)

@@ -8,9 +8,8 @@ from torch.distributions import Normal, TransformedDistribution
 from torch.distributions.transforms import TanhTransform
 
 from algorithms.core import SAC, SACConfig, squashed_gaussian_log_prob
-from algorithms.core.nets import member_generators, member_randn
+from algorithms.core.nets import Stream, member_generators, member_randn
 from algorithms.core.optim import polyak_update
-from algorithms.core.sac import UPDATE_STREAM
 
 OBS, ACT = 5, 2
 SMALL = SACConfig(hidden_dim=16, feature_dim=8)
@@ -89,7 +88,7 @@ def test_alpha_loss_value_and_gradient_sign(log_std, direction):
     pin_outputs(sac, mean=[0.0, 0.0], log_std=[log_std, log_std], q1=0.0, q2=0.0)
     sac.actor_opt.lr = 0.0  # keep the actor fixed so the fresh sample's log-prob is computable here
     batch = make_batch(1, 8)
-    eps = torch.randn((3, 8, ACT), generator=member_generators([3], stream=UPDATE_STREAM)[0])[2]
+    eps = torch.randn((3, 8, ACT), generator=member_generators([3], stream=Stream.SAC_UPDATE)[0])[2]
     log_pi = squashed_gaussian_log_prob(torch.exp(torch.tensor(log_std)) * eps, eps, torch.full_like(eps, log_std))
     expected = 1.0 * (-log_pi - sac.target_entropy).mean()  # alpha_0 = 1
     metrics = sac.update(batch)

@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from algorithms.api import DEMO_FIELDS
 from harness import data as data_mod
 from harness.cli import main
-from harness.data import DEMO_KEYS, DataNotFoundError, find_data_dir, load_demos
+from harness.data import DataNotFoundError, find_data_dir, load_demos
 
 from .conftest import requires_data
 
@@ -78,7 +79,7 @@ def earl_mirror(tmp_path):
     for env in data_mod.ENV_NAMES:
         for d in data_mod.DIRECTIONS:
             with np.load(SHARED / "demos" / env / f"{d}.npz") as z:
-                payload = {k: z[k] for k in DEMO_KEYS}
+                payload = {k: z[k] for k in DEMO_FIELDS}
             payload["infos"] = []
             p = root / data_mod.remote_demo_path(env, d)
             p.parent.mkdir(parents=True)
@@ -108,7 +109,7 @@ def test_fetch_from_local_http_server(http_server, tmp_path, monkeypatch, capsys
     for env in data_mod.ENV_NAMES:
         for d in data_mod.DIRECTIONS:
             got, ref = load_demos(env, d, data_dir=dest), load_demos(env, d, data_dir=SHARED)
-            for k in DEMO_KEYS:
+            for k in DEMO_FIELDS:
                 np.testing.assert_array_equal(getattr(got, k), getattr(ref, k))
     assert (dest / "assets" / "tabletop" / "tabletop_manipulation.xml").exists()
     assert not list(dest.rglob("*.tmp"))

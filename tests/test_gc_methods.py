@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 import torch
 
-from algorithms.api import DemoSet
-from algorithms.core import SAC, SACConfig
+from algorithms.api import BACKWARD, FORWARD, DemoSet
+from algorithms.core import SAC, SACConfig, Stream
 from algorithms.core.nets import member_randn
 from algorithms.core.optim import polyak_update
-from algorithms.goal_conditioned import BACKWARD, FORWARD, AuxCritic
+from algorithms.goal_conditioned import AuxCritic
 from algorithms.risc import (
     RISC,
     RISCConfig,
@@ -292,11 +292,11 @@ def test_vaprl_uses_the_original_codes_behaviour():
 
 
 def test_vaprl_config_rejects_unknown_choices():
-    from harness.runner import build_plan
+    from harness.runner import plan_words
     from harness.suites import ConfigError
 
     with pytest.raises(ConfigError, match="relabel=.banana. is not allowed: must be one of final, final_failed, future_demo, none"):
-        build_plan(["algo=vaprl", f"env={ENV}", "vaprl.relabel=banana", "results=/nonexistent/x"])
+        plan_words(["algo=vaprl", f"env={ENV}", "vaprl.relabel=banana", "results=/nonexistent/x"])
 
 
 # -- both ---------------------------------------------------------------------------------------------------
@@ -330,7 +330,7 @@ def test_aux_critic_update_matches_autograd(squash):
     step on 0.5 * sum_j MSE(squash(head_j(o, a)), y), over 10 masked updates."""
     cfg = SACConfig(hidden_dim=16, feature_dim=8)
     seeds, B, O, A = [1, 2], 12, 5, 2
-    ours, ref = (AuxCritic(O, A, seeds, cfg, "cpu", 30, squash) for _ in range(2))
+    ours, ref = (AuxCritic(O, A, seeds, cfg, "cpu", Stream.SUCCESS_CRITIC, squash) for _ in range(2))
     actor = SAC(O, A, seeds, cfg).actor
     g = torch.Generator().manual_seed(0)
     target_fn = lambda nxt: 0.3 + 0.5 * nxt.min(dim=1).values  # noqa: E731

@@ -3,9 +3,9 @@
 import numpy as np
 import torch
 
-from algorithms.api import DemoSet
+from algorithms.api import BACKWARD, FORWARD, DemoSet
 from algorithms.core.discriminator import discriminator_reward
-from algorithms.medal import BACKWARD, FORWARD, MEDAL, MEDALConfig, demo_states, rho0_states
+from algorithms.medal import MEDAL, MEDALConfig, demo_states, rho0_states
 from harness.data import load_demos
 from harness.envs import get_spec
 

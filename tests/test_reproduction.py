@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from harness import reproduction as R
-from harness.runner import build_plan
+from harness.runner import plan_words
 from harness.suites import ConfigError
 from harness.synthetic import write_run
 
@@ -72,24 +72,24 @@ def test_suite_published_numbers_match_the_published_curves(suite):
 
 @requires_data
 def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
-    plan = build_plan(["suite=reproduction", f"results={tmp_path}"])
-    got = [(g["env"], g["algo"], g["steps"], tuple(g["seeds"])) for g in plan.groups]
+    plan = plan_words(["suite=reproduction", f"results={tmp_path}"])
+    got = [(g.env, g.algo, g.steps, tuple(g.seeds)) for g in plan.groups]
     assert got[0] == ("tabletop_manipulation", "medal", 1_500_000, (0, 1, 2))  # one group: seeds as members
     assert ("sawyer_peg", "oracle", 1_000_000, (0, 1)) in got and len(got) == 9
-    assert sum(g["steps"] * len(g["seeds"]) for g in plan.groups) == 17_700_000
+    assert sum(g.steps * len(g.seeds) for g in plan.groups) == 17_700_000
     # selecting cells; a cell's hash is the ad-hoc run's (same env, algo, config, protocol)
-    one = build_plan(["suite=reproduction", "algo=risc", "env=sawyer_door", f"results={tmp_path}"]).groups
-    adhoc = build_plan(["algo=risc", "env=sawyer_door", "seeds=2", f"results={tmp_path}"]).groups
-    assert [(g["algo"], g["steps"]) for g in one] == [("risc", 500_000)]
-    assert one[0]["config_hash"] == adhoc[0]["config_hash"]
+    one = plan_words(["suite=reproduction", "algo=risc", "env=sawyer_door", f"results={tmp_path}"]).groups
+    adhoc = plan_words(["algo=risc", "env=sawyer_door", "seeds=2", f"results={tmp_path}"]).groups
+    assert [(g.algo, g.steps) for g in one] == [("risc", 500_000)]
+    assert one[0].config_hash == adhoc[0].config_hash
     # variants: a name, the base algorithm's class and config overrides; a command-line override still wins
-    ab = build_plan(["suite=vaprl_ablation", "vaprl_risc.kappa=0.3", f"results={tmp_path}"]).groups
-    by = {g["algo"]: g for g in ab}
-    assert by["vaprl_risc_no_tab"]["algo_class"] == "vaprl_risc"
-    assert by["vaprl_risc_no_tab"]["config"]["bootstrap_on_truncation"] is False
-    assert by["vaprl_risc"]["config"]["bootstrap_on_truncation"] is True
-    assert {g["config"]["kappa"] for g in ab} == {0.3}
-    assert len({g["config_hash"] for g in ab}) == len(ab)
+    ab = plan_words(["suite=vaprl_ablation", "vaprl_risc.kappa=0.3", f"results={tmp_path}"]).groups
+    by = {g.algo: g for g in ab}
+    assert by["vaprl_risc_no_tab"].algo_class == "vaprl_risc"
+    assert by["vaprl_risc_no_tab"].config["bootstrap_on_truncation"] is False
+    assert by["vaprl_risc"].config["bootstrap_on_truncation"] is True
+    assert {g.config["kappa"] for g in ab} == {0.3}
+    assert len({g.config_hash for g in ab}) == len(ab)
 
 
 @requires_data
@@ -107,7 +107,7 @@ def test_bad_cells_are_one_line_errors(tmp_path, cells, error):
     p = tmp_path / "bad.yaml"
     p.write_text(f"cells: {cells}\n")
     with pytest.raises(ConfigError) as e:
-        build_plan([f"suite={p}", f"results={tmp_path / 'r'}"])
+        plan_words([f"suite={p}", f"results={tmp_path / 'r'}"])
     assert error in str(e.value) and "\n" not in str(e.value)
     assert not (tmp_path / "r").exists()
 

@@ -8,6 +8,7 @@ from .nets import (
     MemberLinear,
     MemberMLP,
     MemberTrunk,
+    Stream,
     member_generators,
     member_randn,
 )
@@ -29,6 +30,7 @@ __all__ = [
     "SACConfig",
     "SegmentReplayBuffer",
     "StateBuffer",
+    "Stream",
     "discriminator_reward",
     "member_generators",
     "member_randn",

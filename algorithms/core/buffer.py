@@ -13,7 +13,8 @@
 Both share :class:`MemberStorage` (allocation, masked appends, per-member uniform index draws, compact checkpoints).
 Appends are host-driven (environment data): fill counts live in numpy on the host, so neither appends nor sampling
 synchronise with the device. Randomness: one generator per member on the buffer's device, derived from the member seed
-and ``stream`` (give every buffer of a member its own stream); members masked out of ``sample`` draw nothing.
+and ``stream`` (give every buffer of a member its own :class:`~.nets.Stream` id); members masked out of ``sample``
+draw nothing.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ import torch
 
 from algorithms.api import demo_segments
 
-from .nets import generator_states, host_mask, load_generator_states, member_generators
+from .nets import Stream, generator_states, host_mask, load_generator_states, member_generators
 
 INITIAL_ALLOCATION = 65_536  # slots per member allocated up front
 
@@ -127,7 +128,7 @@ class StateBuffer(MemberStorage):
     """Plain vectors per member (e.g. discriminator positives/negatives, §9.5); uniform sampling with replacement."""
 
     def __init__(self, num_members: int, capacity: int, dim: int, device="cpu", seeds: Sequence[int] | None = None,
-                 stream: int = 20, name: str = "state buffer"):
+                 stream: int = Stream.GC_REPLAY, name: str = "state buffer"):
         seeds = range(num_members) if seeds is None else seeds
         super().__init__(name, num_members, capacity, {"x": ((dim,), torch.float32)}, device, seeds, stream)
 
@@ -159,7 +160,7 @@ class SegmentReplayBuffer(MemberStorage):
     """
 
     def __init__(self, num_members: int, capacity: int, obs_dim: int, act_dim: int, device="cpu",
-                 seeds: Sequence[int] | None = None, filter_first: bool = True, stream: int = 10,
+                 seeds: Sequence[int] | None = None, filter_first: bool = True, stream: int = Stream.REPLAY,
                  name: str = "replay buffer"):
         seeds = range(num_members) if seeds is None else seeds
         fields = {

@@ -16,10 +16,9 @@ from collections.abc import Sequence
 import torch
 import torch.nn.functional as F
 
-from .nets import MemberMLP, generator_states, host_mask, load_generator_states, member_generators
+from .nets import MemberMLP, Stream, generator_states, host_mask, load_generator_states, member_generators
 from .optim import MemberAdam
 
-MIXUP_STREAM = 5
 REWARD_EPS = 1e-10  # §9.3 [MC] discrim_eps; §10 DEFAULT uses the same epsilon
 
 
@@ -43,7 +42,7 @@ class Discriminator:
         self.mixup = mixup
         self.net = MemberMLP(E, [obs_dim, hidden_dim, 1], member_generators(self.seeds)).to(self.device)
         self.opt = MemberAdam(list(self.net.parameters()), E, lr=lr)
-        self.generators = member_generators(self.seeds, self.device, MIXUP_STREAM)
+        self.generators = member_generators(self.seeds, self.device, Stream.MIXUP)
 
     def logits(self, x: torch.Tensor) -> torch.Tensor:
         """x (E, B, obs_dim) -> logits (E, B)."""

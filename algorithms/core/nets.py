@@ -28,6 +28,41 @@ from torch import nn
 # ---------------------------------------------------------------------------------------------------------------------
 
 
+class Stream:
+    """The ids of a member's independent random streams: torch generators (:func:`member_generators`, via
+    :func:`stream_seed`) and numpy ones (``algorithms.common.member_rngs``). No stream (``None``) is the member seed
+    itself, which seeds network initialisation.
+
+    Two streams of one run never share an id; an id is reused only by methods that never run together (the aliases at
+    the end). Every value is frozen: changing one changes every result drawn from that stream, resumed runs included.
+    tests/test_core_streams.py checks both, and that ``algorithms/`` passes no stream id as a bare number."""
+
+    # every SAC agent (core/sac.py)
+    SAC_ACT = 1  # acting noise (the action sampled from the policy)
+    SAC_UPDATE = 2  # update noise (actions sampled for the critic target, the actor loss and the temperature loss)
+    # the MEDAL / VICE discriminator (core/discriminator.py)
+    MIXUP = 5  # mixup coefficients and permutations of the discriminator batch
+    # Naive, Oracle, BC, GAIL and the forward/backward methods (FBRL, R3L, MEDAL and its ablations)
+    TASK_GOALS = 7  # numpy: task-goal draws (Naive's cuts and seed-phase actions, forward/backward phase switches)
+    REPLAY = 10  # minibatch sampling of the main buffer: Naive's replay, the forward buffer, BC's demo pairs
+    BACKWARD_REPLAY = 11  # minibatch sampling of the backward buffer
+    EXPERT_STATES = 12  # discriminator positives: MEDAL's demo states, GAIL's expert (o, a) pairs
+    AGENT_STATES = 13  # discriminator negatives: MEDAL's visited states
+    # the goal-conditioned methods (RISC, VaPRL; algorithms/goal_conditioned.py)
+    GC_REPLAY = 20  # minibatch sampling of the one replay buffer (also StateBuffer's default)
+    GC_GOALS = 21  # numpy: goal draws of new phases
+    GC_WARMUP = 22  # numpy: the warm-up's uniform random actions
+    SUCCESS_CRITIC = 30  # RISC's success critic (AuxCritic): 30 init, 31 update noise, 32 policy-value noise
+    SWITCH = 33  # numpy: RISC's early-switch draws
+    VALUE_CRITIC = 40  # VaPRL's separate value critic (AuxCritic): 40 init, 41 update noise, 42 policy-value noise
+    RELABEL = 43  # numpy: VaPRL's relabelling draws
+    SAC_VALUE = 44  # VaPRL: the actions that value subgoal candidates with the SAC critic
+    # ids reused by methods that never run with the ids' first owner
+    RND_INIT = SUCCESS_CRITIC  # R3L: initialisation of the RND target and predictor networks
+    DAC_INIT = VALUE_CRITIC  # GAIL: initialisation of the DAC discriminator
+    DAC_NOISE = VALUE_CRITIC + 1  # GAIL: the DAC discriminator's gradient-penalty interpolation
+
+
 def stream_seed(seed: int, stream: int) -> int:
     """A 63-bit seed for random stream ``stream`` of a member seeded ``seed`` (independent streams via SeedSequence)."""
     return int(np.random.SeedSequence([stream, seed]).generate_state(2, np.uint32).astype(np.uint64) @ [1 << 31, 1])
@@ -35,7 +70,7 @@ def stream_seed(seed: int, stream: int) -> int:
 
 def member_generators(seeds: Sequence[int], device: torch.device | str = "cpu", stream: int | None = None):
     """One ``torch.Generator`` per member on ``device``; ``stream=None`` seeds with the member seed itself (used for
-    initialisation), an integer derives an independent stream per purpose (acting noise, update noise, sampling)."""
+    initialisation), an id from :class:`Stream` derives an independent stream per purpose (noise, sampling, ...)."""
     gens = []
     for seed in seeds:
         g = torch.Generator(device=device)

@@ -22,6 +22,7 @@ from . import manual
 from .nets import (
     MemberMLP,
     MemberTrunk,
+    Stream,
     generator_states,
     host_mask,
     load_generator_states,
@@ -30,7 +31,6 @@ from .nets import (
 )
 from .optim import FlatMembers, MemberAdam, polyak_update
 
-ACT_STREAM, UPDATE_STREAM = 1, 2  # random-stream ids (see nets.stream_seed)
 HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
@@ -120,8 +120,8 @@ class SAC:
         self.alpha_opt = MemberAdam([self.log_alpha], E, lr=cfg.lr)
         self.target_params = FlatMembers(list(self.critic_target.parameters()), E)
 
-        self.act_generators = member_generators(self.seeds, self.device, ACT_STREAM)
-        self.update_generators = member_generators(self.seeds, self.device, UPDATE_STREAM)
+        self.act_generators = member_generators(self.seeds, self.device, Stream.SAC_ACT)
+        self.update_generators = member_generators(self.seeds, self.device, Stream.SAC_UPDATE)
 
     @property
     def alpha(self) -> torch.Tensor:

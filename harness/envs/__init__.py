@@ -1,4 +1,9 @@
-"""The env registry: short name -> (spec, class). An explicit dict, no import side effects.
+"""The env registry: short name -> :class:`EnvInfo` (spec, label, class, ...). An explicit dict, no import side
+effects but the gymnasium registration.
+
+Each env declares its :class:`EnvInfo` in its own module and is registered here with one line; every per-env
+table of the harness is derived from ``ENVS`` (``GYM_IDS``, ``EVAL_HORIZONS`` below, ``harness.runner.DEFAULT_STEPS``,
+``harness.labels.ENV_ORDER`` / ``ENV_LABELS``, ...). See docs/extending.md.
 
 ``register_gym()`` registers the gymnasium ids (``earl/TabletopManipulation-v0``,
 ``earl/SawyerDoor-v0``, ``earl/SawyerPeg-v0``; ``max_episode_steps`` = EARL's eval horizon H_E).
@@ -8,38 +13,21 @@ gymnasium checker wrappers on the hot path).
 
 from __future__ import annotations
 
-import importlib
-from dataclasses import dataclass
-
 import gymnasium as gym
 
-from harness.envs.base import EarlEnv, EnvSpec, PersistentState
-from harness.envs.tabletop import TABLETOP_SPEC
+from harness.envs.base import EarlEnv, EnvInfo, EnvSpec, PersistentState
+from harness.envs.sawyer_tasks import SAWYER_DOOR, SAWYER_PEG
+from harness.envs.tabletop import TABLETOP
 
-
-@dataclass(frozen=True)
-class EnvEntry:
-    spec_module: str  # module holding the spec and class (imported lazily: metaworld is heavy)
-    spec_name: str
-    class_name: str
-
-    def load(self) -> tuple[EnvSpec, type[EarlEnv]]:
-        mod = importlib.import_module(self.spec_module)
-        return getattr(mod, self.spec_name), getattr(mod, self.class_name)
-
-
-ENVS: dict[str, EnvEntry] = {
-    "tabletop_manipulation": EnvEntry("harness.envs.tabletop", "TABLETOP_SPEC", "TabletopManipulationEnv"),
-    "sawyer_door": EnvEntry("harness.envs.sawyer", "DOOR_SPEC", "SawyerDoorEnv"),
-    "sawyer_peg": EnvEntry("harness.envs.sawyer", "PEG_SPEC", "SawyerPegEnv"),
+ENVS: dict[str, EnvInfo] = {
+    "tabletop_manipulation": TABLETOP,
+    "sawyer_door": SAWYER_DOOR,
+    "sawyer_peg": SAWYER_PEG,
 }
 
-GYM_IDS = {
-    "tabletop_manipulation": "earl/TabletopManipulation-v0",
-    "sawyer_door": "earl/SawyerDoor-v0",
-    "sawyer_peg": "earl/SawyerPeg-v0",
-}
-EVAL_HORIZONS = {"tabletop_manipulation": 200, "sawyer_door": 300, "sawyer_peg": 200}
+#: derived views of ``ENVS`` as imported (code that must follow a registry changed at run time reads ``ENVS``)
+GYM_IDS = {name: info.gym_id for name, info in ENVS.items()}
+EVAL_HORIZONS = {name: info.eval_horizon for name, info in ENVS.items()}
 
 
 class UnknownEnvError(KeyError):
@@ -47,21 +35,20 @@ class UnknownEnvError(KeyError):
         return str(self.args[0])
 
 
-def _entry(name: str) -> EnvEntry:
+def env_info(name: str) -> EnvInfo:
+    """The registered :class:`EnvInfo` of ``name``; :class:`UnknownEnvError` (one line) when there is none."""
     if name not in ENVS:
         raise UnknownEnvError(f"unknown env {name!r}; known envs: {', '.join(ENVS)}")
     return ENVS[name]
 
 
 def get_spec(name: str) -> EnvSpec:
-    if name == "tabletop_manipulation":
-        return TABLETOP_SPEC
-    return _entry(name).load()[0]
+    return env_info(name).spec
 
 
 def make_env(name: str, **kwargs) -> EarlEnv:
     """The bare EARL env (never truncates on its own)."""
-    return _entry(name).load()[1](**kwargs)
+    return env_info(name).load_class()(**kwargs)
 
 
 def make_train_env(name: str, horizon: int | None = None, **kwargs) -> PersistentState:
@@ -87,9 +74,9 @@ def register_gym() -> None:
     """Register the gymnasium ids; idempotent. Importing this module already does (as gymnasium packages do), so
     ``gym.make("earl/SawyerDoor-v0")`` works after ``import harness.envs``, and so does
     ``gym.make("harness.envs:earl/SawyerDoor-v0")`` without it."""
-    for name, gym_id in GYM_IDS.items():
-        if gym_id not in gym.registry:
-            gym.register(id=gym_id, entry_point=_entry_point(name), max_episode_steps=EVAL_HORIZONS[name])
+    for name, info in ENVS.items():
+        if info.gym_id not in gym.registry:
+            gym.register(id=info.gym_id, entry_point=_entry_point(name), max_episode_steps=info.eval_horizon)
 
 
 register_gym()
@@ -97,10 +84,14 @@ register_gym()
 
 __all__ = [
     "ENVS",
+    "EVAL_HORIZONS",
+    "GYM_IDS",
     "EarlEnv",
+    "EnvInfo",
     "EnvSpec",
     "PersistentState",
     "UnknownEnvError",
+    "env_info",
     "get_spec",
     "make_env",
     "make_eval_env",

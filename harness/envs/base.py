@@ -9,6 +9,9 @@ state count as reaching that goal?" by writing a goal into the second half of an
 the constants of ``docs/algorithms.md`` section 1.1 and vectorised ``is_success`` /
 ``compute_reward`` that work on any batch of observations (numpy or torch).
 
+:class:`EnvInfo` is the env's entry in the harness's catalogue (``harness.envs.ENVS``): its spec plus what the
+harness knows about it (display label, default budget, the class that simulates it, scripted experts).
+
 :class:`EarlEnv` is the gymnasium base class. Subclasses implement the simulator; horizons are
 never terminations: the eval horizon is a ``TimeLimit`` truncation (registered ``max_episode_steps``)
 and the train horizon is the :class:`PersistentState` wrapper's truncation.
@@ -16,6 +19,8 @@ and the train horizon is the :class:`PersistentState` wrapper's truncation.
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -171,3 +176,56 @@ class PersistentState(gym.Wrapper):
         self.steps_since_reset = st["steps_since_reset"]
         self.total_steps = st["total_steps"]
         self.resets = st["resets"]
+
+
+def resolve(ref: Any) -> Any:
+    """``ref`` itself, or the object that a ``"package.module:name"`` string names (imported on first use)."""
+    if not isinstance(ref, str):
+        return ref
+    module, _, name = ref.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+@dataclass(frozen=True)
+class EnvInfo:
+    """One env in the harness's catalogue: its :class:`EnvSpec` and the harness's facts about it.
+
+    Declared in the env's own module (next to its spec), registered with one line in ``harness.envs.ENVS``;
+    every per-env table of the harness (gym ids, horizons, default step budgets, labels, scripted demos,
+    benchmarks) is derived from these records (docs/extending.md). ``env_class`` and ``experts`` may be
+    ``"module:name"`` strings, imported on first use, so that the catalogue stays cheap to import when a
+    simulator is not (Meta-World takes over a second)."""
+
+    spec: EnvSpec
+    label: str  # display name in reports and the dashboard
+    env_class: type[EarlEnv] | str  # the EarlEnv subclass that simulates it, or its "module:Class"
+    default_steps: int  # training steps of a run when neither the suite nor the command gives a budget
+    experts: tuple[Callable | str, Callable | str] | None = None  # scripted (forward, reverse) experts obs -> action
+    scripted_demos: tuple[int, int] = (0, 0)  # trajectories (forward, reverse) that `harness data scripted` writes
+    bench_steps: int = 2_000  # env steps per timing in `harness bench env`
+    metaworld_class: str | None = None  # "module:Class" of the raw Meta-World 3 env it builds on (timed by bench env)
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    @property
+    def gym_id(self) -> str:
+        return self.spec.gym_id
+
+    @property
+    def train_horizon(self) -> int:
+        return self.spec.train_horizon
+
+    @property
+    def eval_horizon(self) -> int:
+        return self.spec.eval_horizon
+
+    def load_class(self) -> type[EarlEnv]:
+        return resolve(self.env_class)
+
+    def expert(self, direction: str) -> Callable[[np.ndarray], np.ndarray]:
+        """The scripted expert for ``direction`` (``forward`` or ``reverse``); KeyError when there is none."""
+        if self.experts is None or direction not in ("forward", "reverse"):
+            raise KeyError(f"no scripted expert for env={self.name!r} direction={direction!r}")
+        return resolve(self.experts[direction == "reverse"])

@@ -15,10 +15,10 @@ import time
 
 import numpy as np
 
-RAW_CLASSES = {
-    "sawyer_door": ("metaworld.envs.sawyer_door_close_v3", "SawyerDoorCloseEnvV3"),
-    "sawyer_peg": ("metaworld.envs.sawyer_peg_insertion_side_v3", "SawyerPegInsertionSideEnvV3"),
-}
+from harness.envs import ENVS, make_env
+
+#: env -> (module, class) of the raw Meta-World 3 env it builds on (each env's ``EnvInfo.metaworld_class``)
+RAW_CLASSES = {name: tuple(e.metaworld_class.split(":")) for name, e in ENVS.items() if e.metaworld_class}
 
 
 def _raw_env(name: str, seed: int):
@@ -58,9 +58,7 @@ def raw_metaworld_step_rate(name: str, n_steps: int = 2000, seed: int = 0) -> fl
 
 def our_step_rate(name: str, n_steps: int = 2000, seed: int = 0) -> float:
     """Steps per second of our EARL env (``harness.envs.sawyer``), same protocol."""
-    from harness.envs.sawyer import SawyerDoorEnv, SawyerPegEnv
-
-    env = {"sawyer_door": SawyerDoorEnv, "sawyer_peg": SawyerPegEnv}[name]()
+    env = make_env(name)
     env.reset(seed=seed)
     try:
         return _time_steps(env, n_steps, seed)

@@ -15,6 +15,7 @@ from typing import Callable
 
 import numpy as np
 
+from algorithms.api import DEMO_FIELDS
 from harness.envs.base import EarlEnv
 
 Expert = Callable[[np.ndarray], np.ndarray]
@@ -44,20 +45,12 @@ def tabletop_expert(obs: np.ndarray) -> np.ndarray:
 
 
 def get_expert(env: str, direction: str) -> Expert:
-    """The scripted expert of ``env`` for ``direction`` (``forward`` or ``reverse``)."""
-    if env == "tabletop_manipulation":
-        return tabletop_expert
-    from harness.envs import sawyer_experts  # metaworld-based; imported lazily
+    """The scripted expert of ``env`` for ``direction`` (``forward`` or ``reverse``): its ``EnvInfo.experts``."""
+    from harness.envs import ENVS
 
-    table = {
-        ("sawyer_door", "forward"): sawyer_experts.door_forward,
-        ("sawyer_door", "reverse"): sawyer_experts.door_backward,
-        ("sawyer_peg", "forward"): sawyer_experts.peg_forward,
-        ("sawyer_peg", "reverse"): sawyer_experts.peg_backward,
-    }
-    if (env, direction) not in table:
+    if env not in ENVS:
         raise KeyError(f"no scripted expert for env={env!r} direction={direction!r}")
-    return table[(env, direction)]
+    return ENVS[env].expert(direction)
 
 
 def rollout(
@@ -69,8 +62,7 @@ def rollout(
     is recorded, and what success is judged against); the simulator is untouched. Returns the
     trajectory in EARL's demo layout, or None if it never succeeded."""
     spec = env.spec_
-    keys = ("observations", "actions", "rewards", "terminals", "next_observations")
-    traj: dict[str, list] = {k: [] for k in keys}
+    traj: dict[str, list] = {k: [] for k in DEMO_FIELDS}
     if goal is not None:
         obs = spec.with_goal(obs, goal)
     for _ in range(max_steps):
@@ -79,7 +71,7 @@ def rollout(
         if goal is not None:
             nxt = spec.with_goal(nxt, goal)
         done = bool(spec.is_success(nxt))
-        for k, v in zip(keys, (obs, action, float(done), done, nxt)):
+        for k, v in zip(DEMO_FIELDS, (obs, action, float(done), done, nxt)):
             traj[k].append(v)
         obs = nxt
         if done:

@@ -36,6 +36,9 @@ What differs (MuJoCo 3 / Meta-World 3) and why
   - the door body is placed at EARL's ``obj_init_pos`` once in ``__init__`` (EARL moved it after the
     first hand settling; the hand never touches the door there, so resets are identical);
   - ``reset(options={"state": obs})`` is ours (EARL had no such option), see :meth:`reset`.
+
+EARL's constants, the two :class:`~harness.envs.base.EnvSpec` and their catalogue entries are in
+:mod:`harness.envs.sawyer_tasks` (importable without Meta-World).
 """
 
 from __future__ import annotations
@@ -50,35 +53,8 @@ from metaworld.envs.sawyer_door_close_v3 import SawyerDoorCloseEnvV3
 from metaworld.envs.sawyer_peg_insertion_side_v3 import SawyerPegInsertionSideEnvV3
 
 from harness.data import asset_path
-from harness.envs.base import EarlEnv, EnvSpec
-
-# ------------------------------------------------------------------------------------------------
-# EARL constants (envs/sawyer_door.py, envs/sawyer_peg.py, __init__.py)
-# ------------------------------------------------------------------------------------------------
-
-DOOR_INITIAL_STATES = np.array([[0.00591636, 0.39968333, 0.19493164, 1.0, 0.01007495, 0.47104556, 0.10003595]])
-DOOR_GOAL_STATES = np.array([[0.29072163, 0.74286009, 0.10003595, 1.0, 0.29072163, 0.74286009, 0.10003595]])
-
-_PEG_HAND = [0.00615235, 0.6001898, 0.19430117, 1.0]
-_PEG_HEADS = [
-    [0.00313463, 0.68326396], [-0.04035005, 0.67949003], [0.02531051, 0.6074387], [0.05957219, 0.6271171],
-    [-0.07566337, 0.62575287], [-0.01177235, 0.55206996], [0.02779735, 0.54707706], [0.01835314, 0.5329686],
-    [0.02690855, 0.6263067], [0.01766127, 0.59630984], [0.0560186, 0.6634998], [-0.03950658, 0.6323736],
-    [-0.03216827, 0.5247563], [0.01265727, 0.69466716], [0.05076993, 0.6025737],
-]
-PEG_INITIAL_STATES = np.array([_PEG_HAND + xy + [0.02] for xy in _PEG_HEADS])
-PEG_GOAL_STATES = np.array([[0.0, 0.6, 0.2, 1.0, -0.3 + 0.03, 0.6, 0.0 + 0.13]])
-
-DOOR_SPEC = EnvSpec(
-    name="sawyer_door", gym_id="earl/SawyerDoor-v0", state_dim=7, act_dim=4, success_idx=(4, 5, 6),
-    success_threshold=0.02, train_horizon=200_000, eval_horizon=300,
-    initial_states=DOOR_INITIAL_STATES, goal_states=DOOR_GOAL_STATES,
-)
-PEG_SPEC = EnvSpec(
-    name="sawyer_peg", gym_id="earl/SawyerPeg-v0", state_dim=7, act_dim=4, success_idx=(4, 5, 6),
-    success_threshold=0.05, train_horizon=100_000, eval_horizon=200,
-    initial_states=PEG_INITIAL_STATES, goal_states=PEG_GOAL_STATES,
-)
+from harness.envs.base import EarlEnv
+from harness.envs.sawyer_tasks import DOOR_SPEC, PEG_GOAL_STATES, PEG_SPEC
 
 _MOCAP_QUAT = np.array([1.0, 0.0, 1.0, 0.0])  # Meta-World's fixed gripper orientation
 _HAND_SETTLE_STEPS = 50  # Meta-World's _reset_hand(steps=50)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from harness.envs.base import EarlEnv, EnvSpec
+from harness.envs.base import EarlEnv, EnvInfo, EnvSpec
 
 INITIAL_STATE = np.array([0.0, 0.0, 2.5, 0.0, -1.0, -1.0])
 GOAL_STATES = np.array(
@@ -178,3 +178,15 @@ class TabletopManipulationEnv(EarlEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+#: the harness's catalogue entry (registered in ``harness.envs.ENVS``)
+TABLETOP = EnvInfo(
+    spec=TABLETOP_SPEC,
+    label="Tabletop Organization",
+    env_class=TabletopManipulationEnv,
+    default_steps=3_000_000,
+    experts=("harness.envs.experts:tabletop_expert", "harness.envs.experts:tabletop_expert"),
+    scripted_demos=(12, 12),
+    bench_steps=50_000,
+)

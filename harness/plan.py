@@ -1,0 +1,73 @@
+"""What ``harness run`` will do, as data: run groups (:class:`RunSpec`) and the :class:`Plan` that holds them.
+
+:func:`harness.runner.build_plan` makes a plan from a :class:`harness.runner.RunRequest`; :mod:`harness.backends`
+executes its groups; :func:`harness.protocol.train` runs one group.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from harness.results import checkpoint_path, run_dir
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run group: the seeds one process trains in lockstep, and everything that determines their results.
+
+    :func:`harness.runner.build_plan` makes them; the backends, tuning and the protocol read them."""
+
+    suite: str
+    env: str
+    algo: str  # the method's name in results (a suite cell's variant name, else the algorithm)
+    seeds: tuple[int, ...]
+    steps: int
+    eval_every: int = 10_000
+    eval_episodes: int = 10
+    checkpoint_every: int = 50_000
+    log_every: int = 1000  # training diagnostics (Algorithm.metrics) into train.parquet; divides eval_every
+    device: str = "cpu"
+    results: str = "results"
+    algo_class: str = ""  # the registry key of the algorithm ("" = algo)
+    config: dict[str, Any] = field(default_factory=dict)  # the resolved algorithm config, plain values
+    config_hash: str = ""
+    demo_source: str = ""
+    git_sha: str = "unknown"
+    study: str | None = None  # harness tune: the study and trial the run belongs to
+    trial: int | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        if not self.algo_class:
+            object.__setattr__(self, "algo_class", self.algo)
+
+    @property
+    def label(self) -> str:
+        """How progress lines and errors name the group: ``env/algo seeds=0,1``."""
+        return f"{self.env}/{self.algo} seeds={','.join(map(str, self.seeds))}"
+
+    @property
+    def meta(self) -> dict[str, Any]:
+        """The metadata columns of every results row."""
+        return {"config_hash": self.config_hash, "git_sha": self.git_sha, "demo_source": self.demo_source,
+                "device": self.device, "study": self.study, "trial": self.trial}
+
+    def member_dirs(self) -> list[Path]:
+        return [run_dir(Path(self.results), self.suite, self.env, self.algo, s) for s in self.seeds]
+
+    def checkpoint_path(self) -> Path:
+        return checkpoint_path(self.results, self.suite, self.env, self.algo, self.seeds)
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What ``harness run`` will do: its run groups (one process each) and where they run."""
+
+    suite: str
+    groups: list[RunSpec] = field(default_factory=list)
+    workers: int = 1
+    backend: str = "local"  # local (a process pool) or ray (harness.backends)
+    ray_address: str | None = None  # a Ray cluster to join; None: start a local one
+    calibrate: bool = True  # --dry-run measures the speed of groups not measured yet (harness.calibration)
