@@ -173,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
 
     from harness.runner import RUN_KEYS
-    from harness.tune import TUNE_KEY_HELP
+    from harness.tune_setup import TUNE_KEY_HELP
 
     raw = argparse.RawDescriptionHelpFormatter
     r = sub.add_parser("run", help="run a suite or an ad-hoc set of runs (key=value overrides)",

@@ -37,6 +37,7 @@ class RunSpec:
     git_sha: str = "unknown"
     study: str | None = None  # harness tune: the study and trial the run belongs to
     trial: int | None = None
+    tensorboard: bool = False  # logger=tensorboard: the rows also as TensorBoard events (harness.tensorboard)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))

@@ -208,6 +208,13 @@ def train(
         step, wall = 0, 0.0
         inter.start(algo)
         last_success = [float("nan")] * E
+    if spec.tensorboard:
+        from harness.tensorboard import TensorBoardRun
+
+        for r, d in zip(results, diagnostics):
+            tb = TensorBoardRun(r.dir, step if status == "resumed" else None)
+            r.mirror_to(tb.tagged("eval"))
+            d.mirror_to(tb.tagged("train"))
 
     def checkpoint() -> None:
         state = {"step": step, "wall_s": wall, "last_success": last_success}

@@ -22,7 +22,7 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import pandas as pd
 import pyarrow as pa
@@ -85,6 +85,8 @@ class RunResults:
         self.meta = {k: meta.get(k) for k in META_COLUMNS}
         self.meta["source"] = self.meta.get("source") or "harness"
         self.rows: list[dict[str, Any]] = []
+        self._mirror: Callable[[list[dict[str, Any]]], None] | None = None
+        self._mirrored = 0
 
     @property
     def path(self) -> Path:
@@ -110,6 +112,14 @@ class RunResults:
 
     def flush(self) -> None:
         atomic_write_bytes(self.path, _parquet_bytes(self.frame()))
+        if self._mirror is not None:
+            self._mirror(self.rows[self._mirrored :])
+            self._mirrored = len(self.rows)
+
+    def mirror_to(self, fn: Callable[[list[dict[str, Any]]], None]) -> None:
+        """After each flush, also hand the rows added since the last one to ``fn`` (e.g. a TensorBoard writer);
+        rows kept by :meth:`resume` were handed over before the run stopped."""
+        self._mirror, self._mirrored = fn, len(self.rows)
 
 
 def _strict(v: Any) -> Any:

@@ -62,12 +62,15 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "results": ("results", "results directory"),
     "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
+    "logger": ("parquet", "parquet, or tensorboard: the same rows also as TensorBoard events in each run's "
+                          "tensorboard/ directory (pip install tensorboard)"),
     "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
                           "(seconds each, cached) for the time estimate"),
 }
 #: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
 MAX_STEPS, MAX_SEEDS, MAX_SEED, MAX_MEMBERS, MAX_EPISODES, MAX_WORKERS = 10**9, 1000, 2**31 - 1, 1024, 10_000, 1024
 BACKENDS = ("local", "ray")
+LOGGERS = ("parquet", "tensorboard")
 DEFAULT_STEPS = {name: e.default_steps for name, e in ENVS.items()}  # each env's EnvInfo.default_steps
 PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
 
@@ -158,6 +161,7 @@ class RunRequest:
     backend: str = "local"
     ray_address: str | None = None
     calibrate: bool = True
+    logger: str = "parquet"
     config: dict[str, dict[str, Any]] = field(default_factory=dict)
     study: str | None = None
     trial: int | None = None
@@ -182,6 +186,14 @@ class RunRequest:
             raise ConfigError("ray_address is only used with backend=ray")
         device = check_device(ov.get("device", "cpu"), local=not (backend == "ray" and ov.get("ray_address")))
 
+        logger = ov.get("logger", "parquet")
+        if logger not in LOGGERS:
+            raise ConfigError(f"unknown logger {logger!r}; known: {', '.join(LOGGERS)}")
+        if logger == "tensorboard":
+            from harness.tensorboard import check_available
+
+            check_available()
+
         def opt(key: str, lo: int, hi: int) -> int | None:
             return _int(key, ov[key], lo, hi) if key in ov else None
 
@@ -193,7 +205,7 @@ class RunRequest:
             checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
             members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
             results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
-            calibrate=boolean("calibrate", ov.get("calibrate", "true")), config=config,
+            calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
         )
 
 
@@ -320,7 +332,7 @@ def build_plan(req: RunRequest) -> Plan:
                            seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
                            eval_episodes=eval_episodes, checkpoint_every=ckpt, log_every=log_every, device=req.device,
                            results=req.results, config=cfg_plain, config_hash=h, demo_source=fwd.source, git_sha=sha,
-                           study=req.study, trial=req.trial)
+                           study=req.study, trial=req.trial, tensorboard=req.logger == "tensorboard")
                    for i in range(0, len(u.seeds), members)]
     workers = req.workers or min(os.cpu_count() or 1, MAX_WORKERS)
     plan = Plan(suite_name, groups, workers=min(workers, max(len(groups), 1)), backend=req.backend,

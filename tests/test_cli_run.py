@@ -181,3 +181,44 @@ def test_list_shows_registry(capsys):
     out = capsys.readouterr().out
     for name in [*ALGORITHMS, "sawyer_peg", "earl_sparse", "smoke"]:
         assert name in out
+
+
+def _scalars(run_dir):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(run_dir / "tensorboard"), size_guidance={"scalars": 0})
+    acc.Reload()
+    return {tag: [(e.step, e.value) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}
+
+
+@requires_data
+def test_logger_tensorboard_writes_the_same_rows_once_across_a_resume(tmp_path):
+    """Stopped after the evaluation at 300 with its checkpoint at 200, the run resumes at 200 and redoes 300: the
+    events of the first 300 are purged, so TensorBoard holds each step once with the values the tables hold."""
+    pytest.importorskip("tensorboard")
+    from harness.runner import plan_words, run_group
+
+    words = ["algo=medal", "env=tabletop_manipulation", "steps=400", "eval_every=100", "checkpoint_every=200",
+             "log_every=50", "eval_episodes=1", "medal.seed_steps=50", "medal.batch_size=16", "logger=tensorboard",
+             f"results={tmp_path}"]
+    (spec,) = plan_words(words).groups
+    run = spec.member_dirs()[0]
+    evals_at = lambda: sorted(pd.read_parquet(run / "evals.parquet").step.unique())  # noqa: E731
+    assert run_group(spec, "test", should_stop=lambda: evals_at()[-1] == 300) is None
+    assert evals_at() == [0, 100, 200, 300] and read_status(run)["state"] != "done"
+    first = _scalars(run)["eval/deployed_return"]
+    assert run_group(spec, "test") is None
+    tb = _scalars(run)
+    evals, train = pd.read_parquet(run / "evals.parquet"), pd.read_parquet(run / "train.parquet")
+    for prefix, table in (("eval", evals), ("train", train)):
+        for metric, rows in table.groupby("metric"):
+            got = tb[f"{prefix}/{metric}"]
+            assert [s for s, _ in got] == rows.step.tolist(), metric  # each step once, in order
+            np.testing.assert_allclose([v for _, v in got], rows.value.to_numpy(), rtol=1e-6)
+    assert evals_at() == [0, 100, 200, 300, 400] and "train/forward/critic_loss" in tb
+    assert [s for s, _ in first] == [0, 100, 200, 300]
+
+
+def test_logger_must_be_known(capsys):
+    assert main(["run", "algo=medal", "env=tabletop_manipulation", "logger=wandb", "--dry-run"]) == 2
+    assert "unknown logger 'wandb'; known: parquet, tensorboard" in capsys.readouterr().err
