@@ -18,7 +18,9 @@ Two registered variants share this file:
 
 Settings the original code leaves to per-experiment flags that were not published (DEFAULT, documented in
 docs/reproduction.md): phase length 200 / 300 / 200 (RISC's values; the code's flag default is 400), the value threshold
-``kappa * v_max`` with kappa 0.5, the multiplier's learning rate 3e-4 (flag default) and no upper bound (flag
+``kappa * V_max`` with kappa 0.5 and V_max the most one phase can earn in the critic's units (:func:`value_ceiling`:
+866 for a 200-step phase at reward scale 10 and discount 0.99 -- a unit of 10, RISC's, would put every demo state
+above the threshold, lambda would stay 0 and the subgoal would always be rho0: no curriculum), the multiplier's learning rate 3e-4 (flag default) and no upper bound (flag
 default), one policy action per value estimate (flag default ``num_action_samples`` 1).
 
 Every config switch below selects one behaviour of one of the two codes, so an ablation restores one of them at a time.
@@ -71,7 +73,9 @@ class VaPRLConfig(GCConfig):
     value_actions: int = 1  # num_action_samples of the original code
     use_minimum: bool = setting(True, "V = min(V(s_now -> c), V(c -> g*)) (use_minimum)")
     kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
-    v_max: float = setting(10.0, "reward_scale * sparse reward", gt=0, le=1e9)
+    v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
+                                "reward_scale x (1 if success ends the phase, else (1 - gamma^H) / (1 - gamma), "
+                                "H = phase_step_limit)", ge=0, le=1e9)
     lagrange_lr: float = setting(3e-4, "Adam learning rate of the multiplier (one step per phase_step_limit steps)",
                                  ge=0, le=1)
     lagrange_max: float = setting(math.inf, "upper clip of the multiplier", ge=0)
@@ -90,6 +94,18 @@ class VaPRLRISCConfig(VaPRLConfig):
     value_critic: str = "separate"
     value_actions: int = 5
     use_minimum: bool = False
+    v_max: float = 10.0  # reward_scale x one terminal reward (success ends the phase): RISC's V range
+
+
+def value_ceiling(cfg: VaPRLConfig) -> float:
+    """V_max, the unit of the value threshold: ``cfg.v_max``, or (0) the most one phase can earn in the critic's
+    units: reward_scale when success ends the phase (one terminal reward), else reward_scale x (1 - gamma^H) /
+    (1 - gamma), the sparse reward earned at every step of an H-step phase (no bootstrap at phase ends)."""
+    if cfg.v_max:
+        return cfg.v_max
+    if cfg.success_ends_phase:
+        return cfg.reward_scale
+    return cfg.reward_scale * (1.0 - cfg.gamma**cfg.phase_step_limit) / (1.0 - cfg.gamma)
 
 
 def demo_time_index(terminals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -195,7 +211,7 @@ class VaPRL(GoalConditioned):
 
     @property
     def threshold(self) -> float:
-        return self.cfg.kappa * self.cfg.v_max
+        return self.cfg.kappa * value_ceiling(self.cfg)
 
     def success_ends_phase(self) -> bool:
         return self.cfg.success_ends_phase

@@ -32,6 +32,7 @@ from algorithms.vaprl import (
     final_state_relabel,
     lagrangian_subgoal,
     subgoal_candidates,
+    value_ceiling,
 )
 from harness.data import load_demos
 from harness.envs import get_spec
@@ -238,6 +239,20 @@ def test_final_state_relabel_cuts_at_first_success():
     np.testing.assert_array_equal(copy["observations"][:, 6:], np.broadcast_to(s2[-1], (4, 6)))
     np.testing.assert_array_equal(copy["next_observations"][:, :6], s2[:4])
     np.testing.assert_array_equal(copy["actions"], a[:4])
+
+
+def test_value_threshold_is_in_the_critics_units():
+    """vaprl: phases run to their limit and earn reward at every step at the goal, so V reaches
+    reward_scale (1 - gamma^H) / (1 - gamma) (866 for H = 200); RISC's unit of 10 (success ends the phase) would put
+    the threshold below every value the critic gives demo states and the curriculum would never leave rho0."""
+    vaprl = _make(VaPRL, VaPRLConfig)
+    np.testing.assert_allclose(value_ceiling(vaprl.cfg), 10 * (1 - 0.99**200) / 0.01)
+    np.testing.assert_allclose(vaprl.threshold, 0.5 * 10 * (1 - 0.99**200) / 0.01)
+    assert 430 < vaprl.threshold < 435
+    door = VaPRLConfig(phase_step_limit=300)
+    np.testing.assert_allclose(value_ceiling(door), 10 * (1 - 0.99**300) / 0.01)
+    assert value_ceiling(VaPRLRISCConfig()) == 10.0 and value_ceiling(VaPRLConfig(success_ends_phase=True)) == 10.0
+    assert value_ceiling(VaPRLConfig(v_max=42.0)) == 42.0  # an explicit unit wins
 
 
 def test_lagrangian_rule_and_multiplier():
