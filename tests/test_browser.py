@@ -79,3 +79,35 @@ def test_bench_app_tiny(capsys):
     assert any(line.split()[:2] == ["1", "cold"] for line in lines), printed
     assert any(line.split()[:3] == ["3", "reload", f"{rows[2]['main_s']:.2f}"] for line in lines), printed
     assert "target < 3 s" in printed, printed
+
+
+def test_reproduction_and_diagnostics_tabs_in_chromium(tmp_path):
+    """The Reproduction tab (a panel per cell, the verdict table) and the Diagnostics tab (a chart of train.parquet)
+    served by ``streamlit run`` and drawn in Chromium."""
+    from harness.results import TRAIN_FILE, RunResults, run_dir
+    from tests.test_reproduction import write_ladder_results
+
+    root = write_ladder_results(tmp_path / "results")
+    for seed in (0, 1):
+        ident = {"suite": "reproduction", "env": "tabletop_manipulation", "algo": "risc", "seed": seed}
+        r = RunResults(run_dir(root, *ident.values()), ident, {"config_hash": "x", "members": 2}, TRAIN_FILE)
+        for step in range(1000, 11_000, 1000):
+            r.append(step, {"sac/critic_loss": step / 1000 + seed}, flush=False)
+        r.flush()
+    with serve(root, tmp_path / "streamlit.log") as url, chromium() as browser:
+        page = browser.new_page(viewport=VIEWPORT)
+        page.goto(url, wait_until="domcontentloaded")
+        page.locator('[data-testid="stMetric"]').first.wait_for(timeout=30_000)
+        page.get_by_role("tab", name="Reproduction").click()
+        charts = page.locator('[data-testid="stVegaLiteChart"]')
+        charts.nth(8).wait_for(timeout=60_000)  # one panel per cell of suites/reproduction.yaml
+        page.locator('[data-testid="stDataFrame"]').first.wait_for(timeout=30_000)  # the verdict table (a canvas grid)
+        assert charts.count() == 9 and page.get_by_text("fail (too weak)").count() >= 1
+        _no_exception(page)
+        page.screenshot(path=str(tmp_path / "reproduction.png"), full_page=True)
+
+        page.get_by_role("tab", name="Diagnostics").click()
+        page.get_by_text("sac/critic_loss").first.wait_for(timeout=30_000)
+        page.locator('[data-testid="stVegaLiteChart"] canvas, [data-testid="stVegaLiteChart"] svg').last.wait_for(
+            timeout=30_000)
+        _no_exception(page)
