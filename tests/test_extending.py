@@ -35,10 +35,10 @@ def test_every_registered_env_is_one_record():
     for name, info in ENVS.items():
         assert isinstance(info, EnvInfo) and info.name == name and info.label.strip()
         assert info.default_steps > 0 and info.bench_steps > 0
-        assert GYM_IDS[name] == info.gym_id and EVAL_HORIZONS[name] == info.eval_horizon
+        assert GYM_IDS[name] == info.spec.gym_id and EVAL_HORIZONS[name] == info.spec.eval_horizon
         assert get_spec(name) is info.spec and env_label(name) == info.label
         assert (info.experts is None) == (info.scripted_demos == (0, 0))
-    assert len({i.label for i in ENVS.values()}) == len({i.gym_id for i in ENVS.values()}) == len(ENVS)
+    assert len({i.label for i in ENVS.values()}) == len({i.spec.gym_id for i in ENVS.values()}) == len(ENVS)
 
 
 def test_the_catalogue_does_not_import_the_simulators():
@@ -149,7 +149,7 @@ def registered(monkeypatch):
     monkeypatch.setitem(ALGORITHMS, "random_policy", RandomPolicy)
     register_gym()
     yield
-    gym.registry.pop(POINT.gym_id, None)
+    gym.registry.pop(POINT.spec.gym_id, None)
 
 
 def test_a_new_env_behaves_like_the_earl_envs(registered):
@@ -162,7 +162,7 @@ def test_a_new_env_behaves_like_the_earl_envs(registered):
         if info["success"]:
             break
     assert info["success"] and r == 1.0 and t == 4
-    assert env.spec.max_episode_steps == POINT.eval_horizon and env_label("toy_point") == "Toy Point"
+    assert env.spec.max_episode_steps == POINT.spec.eval_horizon and env_label("toy_point") == "Toy Point"
     assert algo_label("random_policy") == "random policy"
 
 

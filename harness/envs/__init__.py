@@ -26,8 +26,8 @@ ENVS: dict[str, EnvInfo] = {
 }
 
 #: derived views of ``ENVS`` as imported (code that must follow a registry changed at run time reads ``ENVS``)
-GYM_IDS = {name: info.gym_id for name, info in ENVS.items()}
-EVAL_HORIZONS = {name: info.eval_horizon for name, info in ENVS.items()}
+GYM_IDS = {name: info.spec.gym_id for name, info in ENVS.items()}
+EVAL_HORIZONS = {name: info.spec.eval_horizon for name, info in ENVS.items()}
 
 
 class UnknownEnvError(KeyError):
@@ -75,8 +75,8 @@ def register_gym() -> None:
     ``gym.make("earl/SawyerDoor-v0")`` works after ``import harness.envs``, and so does
     ``gym.make("harness.envs:earl/SawyerDoor-v0")`` without it."""
     for name, info in ENVS.items():
-        if info.gym_id not in gym.registry:
-            gym.register(id=info.gym_id, entry_point=_entry_point(name), max_episode_steps=info.eval_horizon)
+        if info.spec.gym_id not in gym.registry:
+            gym.register(id=info.spec.gym_id, entry_point=_entry_point(name), max_episode_steps=info.spec.eval_horizon)
 
 
 register_gym()

@@ -209,18 +209,6 @@ class EnvInfo:
     def name(self) -> str:
         return self.spec.name
 
-    @property
-    def gym_id(self) -> str:
-        return self.spec.gym_id
-
-    @property
-    def train_horizon(self) -> int:
-        return self.spec.train_horizon
-
-    @property
-    def eval_horizon(self) -> int:
-        return self.spec.eval_horizon
-
     def load_class(self) -> type[EarlEnv]:
         return resolve(self.env_class)
 

@@ -41,21 +41,15 @@ PEG_SPEC = EnvSpec(
 )
 
 #: the harness's catalogue entries (registered in ``harness.envs.ENVS``)
-SAWYER_DOOR = EnvInfo(
-    spec=DOOR_SPEC,
-    label="Sawyer Door",
-    env_class="harness.envs.sawyer:SawyerDoorEnv",
-    default_steps=5_000_000,
-    experts=("harness.envs.sawyer_experts:door_forward", "harness.envs.sawyer_experts:door_backward"),
-    scripted_demos=(5, 5),
-    metaworld_class="metaworld.envs.sawyer_door_close_v3:SawyerDoorCloseEnvV3",
-)
-SAWYER_PEG = EnvInfo(
-    spec=PEG_SPEC,
-    label="Sawyer Peg",
-    env_class="harness.envs.sawyer:SawyerPegEnv",
-    default_steps=8_000_000,
-    experts=("harness.envs.sawyer_experts:peg_forward", "harness.envs.sawyer_experts:peg_backward"),
-    scripted_demos=(10, 20),
-    metaworld_class="metaworld.envs.sawyer_peg_insertion_side_v3:SawyerPegInsertionSideEnvV3",
-)
+
+
+def _sawyer(spec: EnvSpec, label: str, task: str, steps: int, demos: tuple[int, int], metaworld: str) -> EnvInfo:
+    """A Sawyer task's record: its env class ``Sawyer<Task>Env``, scripted experts ``<task>_forward/_backward``."""
+    return EnvInfo(spec=spec, label=label, env_class=f"harness.envs.sawyer:Sawyer{task.title()}Env", default_steps=steps,
+                   experts=(f"harness.envs.sawyer_experts:{task}_forward", f"harness.envs.sawyer_experts:{task}_backward"),
+                   scripted_demos=demos, metaworld_class=f"metaworld.envs.{metaworld}")
+
+
+SAWYER_DOOR = _sawyer(DOOR_SPEC, "Sawyer Door", "door", 5_000_000, (5, 5), "sawyer_door_close_v3:SawyerDoorCloseEnvV3")
+SAWYER_PEG = _sawyer(PEG_SPEC, "Sawyer Peg", "peg", 8_000_000, (10, 20),
+                     "sawyer_peg_insertion_side_v3:SawyerPegInsertionSideEnvV3")
