@@ -100,11 +100,14 @@ class VaPRLRISCConfig(VaPRLConfig):
 def value_ceiling(cfg: VaPRLConfig) -> float:
     """V_max, the unit of the value threshold: ``cfg.v_max``, or (0) the most one phase can earn in the critic's
     units: reward_scale when success ends the phase (one terminal reward), else reward_scale x (1 - gamma^H) /
-    (1 - gamma), the sparse reward earned at every step of an H-step phase (no bootstrap at phase ends)."""
+    (1 - gamma), the sparse reward earned at every step of an H-step phase (no bootstrap at phase ends), or
+    reward_scale / (1 - gamma) when the critic bootstraps through phase ends."""
     if cfg.v_max:
         return cfg.v_max
     if cfg.success_ends_phase:
         return cfg.reward_scale
+    if cfg.bootstrap_on_truncation:  # the critic bootstraps through phase ends: an endless stream of rewards
+        return cfg.reward_scale / (1.0 - cfg.gamma)
     return cfg.reward_scale * (1.0 - cfg.gamma**cfg.phase_step_limit) / (1.0 - cfg.gamma)
 
 

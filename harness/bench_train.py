@@ -1,9 +1,9 @@
-"""``harness bench train algo=medal env=sawyer_door members=E [steps=N] [device=cpu]``.
+"""``harness bench train algo=medal env=sawyer_door members=E [steps=N] [device=cpu] [env_workers=N]``.
 
 Training throughput after the seed phase: the protocol's own step (act -> env -> observe) with
 updates on, timed over ``steps`` steps, three times (median). Prints steps/s per member and in
 aggregate (E x per member), and where the time goes (env, act, update, discriminator, buffer,
-other). Evaluation is not included (it is a fixed ~3% of steps for EARL's schedule).
+other; with ``env_workers`` the env share is the wait for the workers). Evaluation is not included (it is a fixed ~3% of steps for EARL's schedule).
 """
 
 from __future__ import annotations
@@ -23,13 +23,20 @@ from harness.words import UsageError, optional_integer
 
 
 def bench_train(algo: str, env: str, members: int, steps: int, device: str, repeats: int = 3, seed_steps: int = 1000,
-                log=print) -> dict:
+                log=print, env_workers: int = 0) -> dict:
     cls = ALGORITHMS[algo]
     cfg = resolve_algo_config(cls.Config, algo, env, {"all": {"seed_steps": seed_steps}})
     demos = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
     seeds = list(range(members))
     agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
-    inter = Interaction(env, seeds)
+    inter = Interaction(env, seeds, env_workers)
+    try:
+        return _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers)
+    finally:
+        inter.close()
+
+
+def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers) -> dict:
     inter.start(agent)
     for _ in range(seed_steps + 100):  # past the seed phase, updates on
         inter.step(agent)
@@ -50,7 +57,8 @@ def bench_train(algo: str, env: str, members: int, steps: int, device: str, repe
         splits.append({k: v / dt for k, v in split.items()})
     rate = statistics.median(rates)
     share = {k: statistics.median(s.get(k, 0.0) for s in splits) for k in splits[0]}
-    log(f"bench train: algo={algo} env={env} members={members} device={device} steps={steps} x {repeats}")
+    log(f"bench train: algo={algo} env={env} members={members} device={device} env_workers={env_workers} "
+        f"steps={steps} x {repeats}")
     log(f"  steps/s per member: {rate:,.1f}   aggregate: {rate * members:,.1f}   (runs: "
         + ", ".join(f"{r:,.1f}" for r in rates) + ")")
     log("  time split: " + "  ".join(f"{k} {v:.0%}" for k, v in sorted(share.items(), key=lambda kv: -kv[1])))
@@ -58,7 +66,7 @@ def bench_train(algo: str, env: str, members: int, steps: int, device: str, repe
 
 
 def bench_train_cli(ov: dict[str, str]) -> int:
-    allowed = {"algo", "env", "members", "steps", "device", "repeats", "threads"}
+    allowed = {"algo", "env", "members", "steps", "device", "repeats", "threads", "env_workers"}
     unknown = set(ov) - allowed
     if unknown:
         raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
@@ -70,5 +78,6 @@ def bench_train_cli(ov: dict[str, str]) -> int:
     if "threads" in ov:
         torch.set_num_threads(optional_integer("threads", ov["threads"], 1, 1))
     bench_train(algo, env, optional_integer("members", ov.get("members"), 1, 1), optional_integer("steps", ov.get("steps"), 1000, 1),
-                ov.get("device", "cpu"), optional_integer("repeats", ov.get("repeats"), 3, 1))
+                ov.get("device", "cpu"), optional_integer("repeats", ov.get("repeats"), 3, 1),
+                env_workers=optional_integer("env_workers", ov.get("env_workers"), 0, 0))
     return 0

@@ -37,6 +37,7 @@ class RunSpec:
     git_sha: str = "unknown"
     study: str | None = None  # harness tune: the study and trial the run belongs to
     trial: int | None = None
+    env_workers: int = 0  # > 1: the member envs stepped in that many worker processes (harness.env_pool)
     tensorboard: bool = False  # logger=tensorboard: the rows also as TensorBoard events (harness.tensorboard)
 
     def __post_init__(self) -> None:

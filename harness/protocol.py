@@ -39,7 +39,7 @@ import numpy as np
 import torch
 
 from algorithms.api import Algorithm
-from harness.envs import make_env, make_train_env
+from harness.env_pool import LocalEnvs, WorkerEnvs, make_envs
 from harness.plan import RunSpec
 from harness.results import TRAIN_FILE, RunResults, write_status
 
@@ -87,10 +87,11 @@ def check_actions(actions: np.ndarray, seeds: list[int], when: str) -> None:
 
 
 class Interaction:
-    """The E train envs and the current observations: one protocol step at a time."""
+    """The E train envs and the current observations: one protocol step at a time. ``env_workers`` > 1 steps the
+    envs in that many worker processes (:mod:`harness.env_pool`; same results); call :meth:`close` when done."""
 
-    def __init__(self, env: str, seeds: list[int]):
-        self.envs = [make_train_env(env) for _ in seeds]
+    def __init__(self, env: str, seeds: list[int], env_workers: int = 0):
+        self.envs = make_envs(env, len(seeds), env_workers, "train")
         self.seeds = seeds
         self.obs: np.ndarray | None = None
         self.cum_reward = np.zeros(len(seeds))
@@ -98,68 +99,64 @@ class Interaction:
         self.timed = False
 
     def start(self, algo: Algorithm) -> None:
-        self.obs = np.stack([env.reset(seed=s)[0] for env, s in zip(self.envs, self.seeds)])
+        self.obs = self.envs.reset(range(len(self.seeds)), self.seeds)
         algo.on_reset(self.obs, np.ones(len(self.envs), dtype=bool))
 
     def step(self, algo: Algorithm, step: int | None = None) -> None:
         """act -> env step -> observe -> reset the members that hit H_T or asked for a reset. ``step`` (the
         protocol step being taken) only names where a :class:`DivergedError` happened."""
-        E = len(self.envs)
         actions = algo.act(self.obs)
         check_actions(actions, self.seeds, "in training" + (f" at step {step:,}" if step is not None else ""))
-        next_obs = np.empty_like(self.obs)  # fresh each step: algorithms may keep references
-        hard = np.zeros(E, dtype=bool)
-        rewards = np.zeros(E)
         t = time.perf_counter() if self.timed else 0.0
-        for i, env in enumerate(self.envs):
-            next_obs[i], rewards[i], _, hard[i], _ = env.step(actions[i])
+        next_obs, rewards, hard, _ = self.envs.step(actions)  # a fresh array each step: algorithms may keep it
+        next_obs = next_obs.astype(self.obs.dtype, copy=False)
         if self.timed:
             self.env_seconds += time.perf_counter() - t
         self.cum_reward += rewards
         reset = hard | algo.observe(next_obs, hard)
         if reset.any():
-            for i in np.flatnonzero(reset):
-                next_obs[i] = self.envs[i].reset()[0]
+            idx = np.flatnonzero(reset)
+            next_obs[idx] = self.envs.reset(idx)
             algo.on_reset(next_obs, reset)
         self.obs = next_obs
 
     def interventions(self) -> np.ndarray:
-        return np.array([env.interventions for env in self.envs], dtype=np.float64)
+        return self.envs.interventions()
 
     def state_dict(self) -> dict[str, Any]:
-        return {
-            "envs": [{"sim": env.unwrapped.get_sim_state(), "wrapper": env.get_wrapper_state()} for env in self.envs],
-            "obs": self.obs,
-            "cum_reward": self.cum_reward,
-        }
+        return {"envs": self.envs.get_states(), "obs": self.obs, "cum_reward": self.cum_reward}
 
     def load_state_dict(self, st: dict[str, Any]) -> None:
-        for env, e in zip(self.envs, st["envs"]):
-            env.unwrapped.set_sim_state(e["sim"])
-            env.set_wrapper_state(e["wrapper"])
+        self.envs.set_states(st["envs"])
         self.obs, self.cum_reward = st["obs"], st["cum_reward"]
+
+    def close(self) -> None:
+        self.envs.close()
 
 
 def eval_seed(member_seed: int, step: int) -> int:
     return (member_seed * 1_000_003 + step // 1000) % (2**31 - 1)
 
 
-def evaluate(algo: Algorithm, envs: list, seeds: list[int], step: int, episodes: int) -> tuple[np.ndarray, np.ndarray]:
-    """Deployed-policy evaluation of all members; returns (success rate, mean return), each (E,)."""
+def evaluate(algo: Algorithm, envs: list | LocalEnvs | WorkerEnvs, seeds: list[int], step: int,
+             episodes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Deployed-policy evaluation of all members (``envs``: a list of eval envs, or a pool of them); returns
+    (success rate, mean return), each (E,)."""
+    if isinstance(envs, list):
+        envs = LocalEnvs("", len(envs), "eval", envs)
     E = len(envs)
-    horizon = envs[0].spec_.eval_horizon
+    horizon = envs.spec_.eval_horizon
     successes = np.zeros(E)
     returns = np.zeros(E)
     for ep in range(episodes):
-        obs = np.stack([env.reset(seed=eval_seed(s, step) if ep == 0 else None)[0] for env, s in zip(envs, seeds)])
+        obs = envs.reset(range(E), [eval_seed(s, step) for s in seeds] if ep == 0 else None)
         hit = np.zeros(E, dtype=bool)
         for _ in range(horizon):
             actions = algo.eval_act(obs)
             check_actions(actions, seeds, f"in the evaluation at step {step:,}")
-            for i, env in enumerate(envs):
-                obs[i], r, _, _, info = env.step(actions[i])
-                returns[i] += r
-                hit[i] |= info["success"]
+            obs, r, _, succ = envs.step(actions)
+            returns += r
+            hit |= succ
         successes += hit
     return successes / episodes, returns / episodes
 
@@ -184,8 +181,20 @@ def train(
 ) -> list[RunResults]:
     """Run (or resume) one group to ``spec.steps`` training steps. Returns the per-member results."""
     E = len(spec.seeds)
-    inter = Interaction(spec.env, spec.seeds)
-    eval_envs = [make_env(spec.env) for _ in range(E)]
+    inter = Interaction(spec.env, spec.seeds, spec.env_workers)
+    eval_envs = make_envs(spec.env, E, spec.env_workers, "eval")
+    closers: list = [inter, eval_envs]
+    try:
+        return _train(spec, algo, inter, eval_envs, on_progress, should_stop, closers)
+    finally:
+        for c in closers:
+            c.close()
+
+
+def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalEnvs | WorkerEnvs,
+           on_progress: Callable[[Progress], None] | None, should_stop: Callable[[], bool] | None,
+           closers: list) -> list[RunResults]:
+    E = len(spec.seeds)
     dirs = spec.member_dirs()
     results = [
         RunResults(d, {"suite": spec.suite, "env": spec.env, "algo": spec.algo, "seed": s}, {**spec.meta, "members": E})
@@ -213,6 +222,7 @@ def train(
 
         for r, d in zip(results, diagnostics):
             tb = TensorBoardRun(r.dir, step if status == "resumed" else None)
+            closers.append(tb)
             r.mirror_to(tb.tagged("eval"))
             d.mirror_to(tb.tagged("train"))
 

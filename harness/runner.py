@@ -62,6 +62,8 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "results": ("results", "results directory"),
     "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
+    "env_workers": ("0", "worker processes stepping the member envs of each group (0: in the group's process; "
+                         "for many seeds per process, e.g. on a GPU)"),
     "logger": ("parquet", "parquet, or tensorboard: the same rows also as TensorBoard events in each run's "
                           "tensorboard/ directory (pip install tensorboard)"),
     "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
@@ -162,6 +164,7 @@ class RunRequest:
     ray_address: str | None = None
     calibrate: bool = True
     logger: str = "parquet"
+    env_workers: int = 0
     config: dict[str, dict[str, Any]] = field(default_factory=dict)
     study: str | None = None
     trial: int | None = None
@@ -172,6 +175,8 @@ class RunRequest:
         from harness.registry import ALGORITHMS
 
         for w in words:  # name the unknown algorithm of an override, not just its scope
+            if "=" not in w:
+                continue  # parse_words names it
             scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
             if scope is not None and scope != "all" and scope not in ALGORITHMS:
                 raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
@@ -206,6 +211,7 @@ class RunRequest:
             members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
             results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
             calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
+            env_workers=_int("env_workers", ov.get("env_workers", 0), 0, MAX_WORKERS),
         )
 
 
@@ -284,6 +290,10 @@ def build_plan(req: RunRequest) -> Plan:
     from harness.data import load_demos
     from harness.registry import ALGORITHMS
 
+    if req.backend not in BACKENDS:
+        raise ConfigError(f"unknown backend {req.backend!r}; known backends: {', '.join(BACKENDS)}")
+    if req.logger not in LOGGERS:
+        raise ConfigError(f"unknown logger {req.logger!r}; known: {', '.join(LOGGERS)}")
     if req.suite is not None:
         suite_name, suite = load_suite(req.suite)
     else:
@@ -332,7 +342,7 @@ def build_plan(req: RunRequest) -> Plan:
                            seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
                            eval_episodes=eval_episodes, checkpoint_every=ckpt, log_every=log_every, device=req.device,
                            results=req.results, config=cfg_plain, config_hash=h, demo_source=fwd.source, git_sha=sha,
-                           study=req.study, trial=req.trial, tensorboard=req.logger == "tensorboard")
+                           study=req.study, trial=req.trial, tensorboard=req.logger == "tensorboard", env_workers=req.env_workers)
                    for i in range(0, len(u.seeds), members)]
     workers = req.workers or min(os.cpu_count() or 1, MAX_WORKERS)
     plan = Plan(suite_name, groups, workers=min(workers, max(len(groups), 1)), backend=req.backend,

@@ -3,7 +3,8 @@
 The parquet tables stay the record; TensorBoard gets the same rows as they are written (tags ``eval/<metric>`` for
 ``evals.parquet`` and ``train/<metric>`` for the training diagnostics of ``train.parquet``, step = env step). A run
 resumed from its checkpoint at step S purges the events after S that the stopped process had written, so TensorBoard
-shows each step once, as the tables do. Needs ``pip install tensorboard`` (the ``tensorboard`` extra).
+shows each step once, as the tables do (a run restarted from step 0 purges all earlier events). Switching to
+``logger=tensorboard`` on a resumed run sends only the rows written from then on. Needs ``pip install tensorboard`` (the ``tensorboard`` extra).
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ class TensorBoardRun:
     def __init__(self, run_dir: Path, resume_step: int | None):
         from torch.utils.tensorboard import SummaryWriter
 
-        # purge_step: events at steps >= it, written before a stop, are hidden (the checkpoint's step was kept)
-        purge = resume_step + 1 if resume_step else None
+        # purge_step: events at steps >= it, written before a stop, are hidden: after the checkpoint's step when
+        # resuming, everything when (re)starting from step 0 (a run that died before its first checkpoint)
+        purge = resume_step + 1 if resume_step is not None else 0
         self.writer = SummaryWriter(str(Path(run_dir) / DIRNAME), purge_step=purge)
 
     def tagged(self, prefix: str):

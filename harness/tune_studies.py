@@ -134,19 +134,35 @@ def fail_dead_local_trials(study, storage) -> list[int]:
     host, out = socket.gethostname(), []
     if isinstance(storage, load_optuna().storages.RDBStorage):
         return out  # an RDB with heartbeats: Optuna fails stale trials itself (fail_stale_trials)
-    cls = retry_callback_class()
-    retry = cls(MAX_RETRY, inherit_intermediate_values=True)
+    from optuna.exceptions import UpdateFinishedTrialError
+
     for t in study.get_trials(deepcopy=False, states=(TrialState.RUNNING,)):
         h, _, pid = str(t.user_attrs.get("worker", "")).rpartition(":")
         if h != host or not pid.isdigit() or _alive(int(pid)):
             continue
-        study.tell(t.number, state=TrialState.FAIL, skip_if_finished=True)
-        retried = {cls.retried_trial_number(x) for x in study.get_trials(deepcopy=False)}
-        failed = frozen_trial(study, t.number)
-        if failed.state == TrialState.FAIL and t.number not in retried:  # not finished or retried meanwhile
-            retry(study, failed)
-            out.append(t.number)
+        try:  # only the process whose write fails the trial retries it
+            study.tell(t.number, state=TrialState.FAIL)
+        except (ValueError, RuntimeError, UpdateFinishedTrialError):
+            continue  # finished, or failed by another worker, meanwhile
+        _retry(study, frozen_trial(study, t.number))
+        out.append(t.number)
     return out
+
+
+def _retry(study, trial) -> None:
+    """Queue a retry of ``trial`` with its parameters and intermediate values (it resumes in the same directory),
+    without the marks of the process that ran it (``worker``, ``interrupted``)."""
+    import copy
+
+    clean = copy.deepcopy(trial)
+    clean.user_attrs = {k: v for k, v in trial.user_attrs.items() if k not in ("worker", "interrupted")}
+    retry_callback_class()(MAX_RETRY, inherit_intermediate_values=True)(study, clean)
+
+
+def retried_numbers(trials) -> set[int]:
+    """Every trial that has a retry (anywhere down a chain of retries of retries)."""
+    cls = retry_callback_class()
+    return {n for t in trials for n in cls.retry_history(t)}
 
 
 def retry_interrupted_trials(study) -> list[int]:
@@ -154,14 +170,12 @@ def retry_interrupted_trials(study) -> list[int]:
     with the same parameters, which resumes in the interrupted trial's directory. Returns their numbers."""
     from optuna.trial import TrialState
 
-    cls = retry_callback_class()
-    retry = cls(MAX_RETRY, inherit_intermediate_values=True)
     trials = study.get_trials(deepcopy=False)
-    retried = {cls.retried_trial_number(t) for t in trials} - {None}
+    retried = retried_numbers(trials)
     out = []
     for t in trials:
         if t.state == TrialState.FAIL and t.user_attrs.get("interrupted") and t.number not in retried:
-            retry(study, t)
+            _retry(study, t)
             out.append(t.number)
     return out
 

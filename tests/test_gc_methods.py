@@ -253,6 +253,7 @@ def test_value_threshold_is_in_the_critics_units():
     np.testing.assert_allclose(value_ceiling(door), 10 * (1 - 0.99**300) / 0.01)
     assert value_ceiling(VaPRLRISCConfig()) == 10.0 and value_ceiling(VaPRLConfig(success_ends_phase=True)) == 10.0
     assert value_ceiling(VaPRLConfig(v_max=42.0)) == 42.0  # an explicit unit wins
+    np.testing.assert_allclose(value_ceiling(VaPRLConfig(bootstrap_on_truncation=True)), 1000.0)  # endless rewards
 
 
 def test_lagrangian_rule_and_multiplier():

@@ -89,10 +89,11 @@ def test_eval_schedule_metrics_and_layout(tmp_path):
 
 
 def test_hard_reset_every_train_horizon_counts_interventions(tmp_path, monkeypatch):
-    import harness.protocol as protocol
-    from harness.envs import make_train_env
+    import harness.env_pool as env_pool
+    from harness.envs import make_env, make_train_env
 
-    monkeypatch.setattr(protocol, "make_train_env", lambda name: make_train_env(name, horizon=300))
+    monkeypatch.setattr(env_pool, "make_member_env",
+                        lambda name, kind: make_train_env(name, horizon=300) if kind == "train" else make_env(name))
     spec = _spec(tmp_path, steps=1000, seeds=[0])
     algo = _algo(spec.seeds)
     train(spec, algo)

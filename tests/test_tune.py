@@ -210,3 +210,30 @@ def test_killed_worker_trial_fails_by_heartbeat_and_is_retried(postgres, tmp_pat
     d = load(tmp_path / "tuning" / "hb")
     d = d[(d.metric == "deployed_success") & (d.trial == 0)]
     assert sorted(d.step) == [0, 100, 200, 300]  # resumed from the dead trial's checkpoint, nothing twice
+
+
+def test_interrupted_retries_are_queued_once_down_a_chain_and_without_the_old_marks():
+    """Trial 0 interrupted -> one retry (1); that retry interrupted too -> one retry of it (2); calling again queues
+    nothing, and a queued retry carries neither the dead worker's pid nor the interrupted mark."""
+    import optuna
+    from optuna.trial import TrialState
+
+    from harness.tune_studies import retried_numbers, retry_interrupted_trials
+
+    study = optuna.create_study(direction="maximize")
+
+    def run_and_interrupt() -> int:
+        trial = study.ask({"x": optuna.distributions.FloatDistribution(0, 1)})
+        assert "worker" not in trial.user_attrs and "interrupted" not in trial.user_attrs
+        trial.set_user_attr("worker", "host:1")
+        trial.set_user_attr("interrupted", True)
+        study.tell(trial, state=TrialState.FAIL)
+        return trial.number
+
+    assert run_and_interrupt() == 0
+    assert retry_interrupted_trials(study) == [0] and retry_interrupted_trials(study) == []
+    assert run_and_interrupt() == 1  # the queued retry of 0, interrupted in its turn
+    assert retry_interrupted_trials(study) == [1] and retry_interrupted_trials(study) == []
+    trials = study.get_trials(deepcopy=False)
+    assert [t.state for t in trials] == [TrialState.FAIL, TrialState.FAIL, TrialState.WAITING]
+    assert trials[2].params == trials[0].params and retried_numbers(trials) == {0, 1}
