@@ -45,7 +45,8 @@ def machine() -> str:
 
 def key(group: RunSpec, threads: int) -> str:
     return "|".join([machine(), group.device, f"threads={threads}", group.algo_class, group.env,
-                     f"members={len(group.seeds)}", group.config_hash])
+                     f"members={len(group.seeds)}", group.config_hash]
+                    + ([f"env_workers={group.env_workers}"] if group.env_workers > 1 else []))
 
 
 def read_cache() -> dict[str, float]:
@@ -71,14 +72,17 @@ def measure(group: RunSpec, threads: int) -> float:
     try:
         demos = DemoSet(load_demos(group.env, "forward"), load_demos(group.env, "reverse"))
         algo = cls(get_spec(group.env), demos, cfg, list(group.seeds), torch.device(group.device))
-        inter = Interaction(group.env, list(group.seeds))
-        inter.start(algo)
-        for _ in range(WARMUP + 10):
-            inter.step(algo)
-        t = time.perf_counter()
-        for _ in range(MEASURE):
-            inter.step(algo)
-        return MEASURE / (time.perf_counter() - t)
+        inter = Interaction(group.env, list(group.seeds), group.env_workers)
+        try:
+            inter.start(algo)
+            for _ in range(WARMUP + 10):
+                inter.step(algo)
+            t = time.perf_counter()
+            for _ in range(MEASURE):
+                inter.step(algo)
+            return MEASURE / (time.perf_counter() - t)
+        finally:
+            inter.close()
     finally:
         torch.set_num_threads(old)
 
