@@ -57,6 +57,22 @@ def with_goal(obs: np.ndarray, goal: np.ndarray, state_dim: int) -> np.ndarray:
     return out
 
 
+def to_host(*tensors: torch.Tensor | None) -> list[np.ndarray | None]:
+    """Host copies of device tensors that share a leading member dim E (None passes through), fetched in ONE
+    device->host transfer: on a GPU each transfer is a synchronisation, and a training step needs one (its actions)."""
+    present = [t for t in tensors if t is not None]
+    if not present:
+        return [None] * len(tensors)
+    if len(present) == 1:
+        host = [present[0].cpu().numpy()]
+    else:
+        flat = torch.cat([t.reshape(t.shape[0], -1).to(torch.float32) for t in present], 1).cpu().numpy()
+        ends = np.cumsum([t[0].numel() for t in present])
+        host = [part.reshape(t.shape) for part, t in zip(np.split(flat, ends[:-1], axis=1), present)]
+    it = iter(host)
+    return [None if t is None else next(it) for t in tensors]
+
+
 class TrainLog:
     """Per-member means of training diagnostics since the last :meth:`pop` (what each update returns: losses,
     temperature, Q, rewards; and host-side counts such as phase outcomes). Device values are summed on the device and

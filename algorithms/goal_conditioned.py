@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from algorithms.api import FORWARD, Algorithm, DemoSet, Task, demo_arrays, setting
-from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, with_goal
+from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, to_host, with_goal
 from algorithms.core import Stream, manual
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.nets import generator_states, host_mask, load_generator_states, member_generators, member_randn
@@ -152,8 +152,14 @@ class GoalConditioned(Algorithm):
         """Goals (E, state_dim) for the members in ``mask`` starting a phase in ``self.direction``."""
         raise NotImplementedError
 
-    def early_switch(self, obs: torch.Tensor) -> np.ndarray:
-        """(E,) bool: end the phase after this step (decided on s_t, before the transition)."""
+    def switch_request(self, obs: torch.Tensor) -> torch.Tensor | None:
+        """Device values (E,) that :meth:`early_switch` needs for s_t, or None; they reach the host together with the
+        action, in one transfer."""
+        return None
+
+    def early_switch(self, values: np.ndarray | None) -> np.ndarray:
+        """(E,) bool: end the phase after this step (decided on s_t, before the transition), from the host copy of
+        :meth:`switch_request`'s values."""
         return np.zeros(self.E, dtype=bool)
 
     def stored(self, obs: np.ndarray, next_obs: np.ndarray, end: np.ndarray) -> None:
@@ -183,13 +189,14 @@ class GoalConditioned(Algorithm):
         self._obs = with_goal(obs, self.goal, self.task.state_dim)
         ot = torch.as_tensor(self._obs, device=self.device)
         with self.timers("act"):
-            if self.cfg.random_warmup and self.step < self.cfg.seed_steps:
-                self._action = np.stack([r.uniform(-1.0, 1.0, self.task.act_dim) for r in self.warmup_rngs])
-                self._action = self._action.astype(np.float32)
-            else:
-                self._action = self.sac.act(ot).cpu().numpy()
+            warmup = self.cfg.random_warmup and self.step < self.cfg.seed_steps
+            action = None if warmup else self.sac.act(ot)
+            action, values = to_host(action, self.switch_request(ot))  # the step's one device->host transfer
+            if warmup:
+                action = np.stack([r.uniform(-1.0, 1.0, self.task.act_dim) for r in self.warmup_rngs])
+            self._action = action.astype(np.float32, copy=False)
         with self.timers("switch"):
-            self._switch = self.early_switch(ot)
+            self._switch = self.early_switch(values)
         return self._action
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:

@@ -98,22 +98,29 @@ class RISC(GoalConditioned):
             out[i] = pool[self.goal_rngs[i].integers(len(pool))]
         return out
 
-    def success_probability(self, obs: torch.Tensor, mask=None) -> np.ndarray:
-        """P_hat(s, g) for obs (E, O) -> (E,) (14.3)."""
+    def success_probability(self, obs: torch.Tensor, mask=None) -> torch.Tensor:
+        """P_hat(s, g) for obs (E, O) -> (E,) on the device (14.3)."""
         p = self.success.policy_value(self.sac.actor, obs[:, None], mask, self.cfg.value_actions)
-        return p[:, 0].cpu().numpy()
+        return p[:, 0]
 
-    def early_switch(self, obs: torch.Tensor) -> np.ndarray:
+    def switch_request(self, obs: torch.Tensor) -> torch.Tensor | None:
+        """Which members may switch at this step (host draws, kept for :meth:`early_switch`) and, if any, their P_hat
+        (E,) on the device."""
         cfg = self.cfg
         t = self.phase_steps + 1
-        eligible = np.zeros(self.E, dtype=bool)
+        self._eligible = eligible = np.zeros(self.E, dtype=bool)
         for i in np.flatnonzero(t >= cfg.minimum_steps):
             eligible[i] = self.switch_rngs[i].random() < cfg.trajectory_proportion
-        if not eligible.any():
-            return eligible
-        p = switch_probability(self.success_probability(obs, eligible), t, cfg.conservative_factor, cfg.minimum_steps)
+        return self.success_probability(obs, eligible) if eligible.any() else None
+
+    def early_switch(self, p_hat: np.ndarray | None) -> np.ndarray:
+        """Switch an eligible member with probability P_hat * (1 - c^t) (14.4)."""
         switch = np.zeros(self.E, dtype=bool)
-        for i in np.flatnonzero(eligible):
+        if p_hat is None:
+            return switch
+        cfg = self.cfg
+        p = switch_probability(p_hat, self.phase_steps + 1, cfg.conservative_factor, cfg.minimum_steps)
+        for i in np.flatnonzero(self._eligible):
             switch[i] = self.switch_rngs[i].random() < p[i]
         self.switches += switch
         return switch

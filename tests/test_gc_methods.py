@@ -8,6 +8,7 @@ import pytest
 import torch
 
 from algorithms.api import BACKWARD, FORWARD, DemoSet
+from algorithms.common import to_host
 from algorithms.core import SAC, SACConfig, Stream
 from algorithms.core.nets import member_randn
 from algorithms.core.optim import polyak_update
@@ -79,12 +80,12 @@ def test_switch_probability_function():
 def test_switch_frequency_matches_rule(monkeypatch, proportion):
     """Counted over many draws: 0 before minimum_steps, proportion * P * (1 - c^t) after (per-step redraw)."""
     r = _make(RISC, RISCConfig, minimum_steps=3, conservative_factor=0.5, trajectory_proportion=proportion)
-    monkeypatch.setattr(r, "success_probability", lambda obs, mask=None: np.full(r.E, 0.6))
+    monkeypatch.setattr(r, "success_probability", lambda obs, mask=None: torch.full((r.E,), 0.6))
     obs = torch.zeros(1, r.task.obs_dim)
     for steps_done, expected in ((1, 0.0), (2, proportion * 0.6 * (1 - 0.5**3)), (4, proportion * 0.6 * (1 - 0.5**5))):
         r.phase_steps[:] = steps_done  # t = steps_done + 1
         n = 4000
-        freq = np.mean([r.early_switch(obs)[0] for _ in range(n)])
+        freq = np.mean([r.early_switch(to_host(r.switch_request(obs))[0])[0] for _ in range(n)])
         assert abs(freq - expected) < 4 * np.sqrt(max(expected * (1 - expected), 1e-9) / n) + 1e-9
 
 
@@ -108,7 +109,7 @@ def test_success_critic_target_and_update(monkeypatch):
     r.update_aux(batch)
     torch.testing.assert_close(seen["y"], seen["want"])
     p = r.success_probability(torch.as_tensor(r.buffer.data["obs"][:, :1]).reshape(1, -1))
-    assert p.shape == (1,) and 0.0 <= p[0] <= 1.0
+    assert p.shape == (1,) and 0.0 <= float(p[0]) <= 1.0
 
 
 def test_risc_vs_no_tab_differ_only_in_bootstrap_mask():
