@@ -28,7 +28,16 @@ import numpy as np
 import torch
 
 from algorithms.api import FORWARD, Algorithm, DemoSet, Task, demo_arrays, setting
-from algorithms.common import SACAlgoConfig, Timers, TrainLog, load_rng_states, member_rngs, rng_states, to_host, with_goal
+from algorithms.common import (
+    SACAlgoConfig,
+    Timers,
+    TrainLog,
+    load_rng_states,
+    member_rngs,
+    rng_states,
+    to_host,
+    with_goal,
+)
 from algorithms.core import Stream, manual
 from algorithms.core.buffer import SegmentReplayBuffer
 from algorithms.core.nets import generator_states, host_mask, load_generator_states, member_generators, member_randn
