@@ -325,10 +325,11 @@ def _mark_interrupted(plan: Plan) -> int:
     return n
 
 
-def ray_options(device: str, num_cpus: float) -> dict[str, Any]:
+def ray_options(device: str, num_cpus: float, per_gpu: int = 1) -> dict[str, Any]:
+    """A group's Ray resources: ``num_cpus``, and on CUDA 1/``per_gpu`` of a GPU (the plan's processes per GPU)."""
     opts: dict[str, Any] = {"num_cpus": num_cpus, "max_retries": RAY_MAX_RETRIES, "retry_exceptions": True}
     if str(device).startswith("cuda"):
-        opts["num_gpus"] = 1
+        opts["num_gpus"] = 1.0 / max(per_gpu, 1)
     return opts
 
 
@@ -345,7 +346,7 @@ def run_ray(plan: Plan, command: str, work: Work, address: str | None = None) ->
 
         try:
             run_ray_tasks(ray, _ray_group, [(work, g, command, threads, data_dir, env) for g in plan.groups],
-                          labels, ray_options(plan.groups[0].device, 1), on_error)
+                          labels, ray_options(plan.groups[0].device, 1, plan.per_device), on_error)
         except KeyboardInterrupt:
             raise Interrupted(_mark_interrupted(plan)) from None
     return errors

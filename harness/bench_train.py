@@ -1,4 +1,5 @@
-"""``harness bench train algo=medal env=sawyer_door members=E [steps=N] [device=cpu] [env_workers=N]``.
+"""``harness bench train algo=medal env=sawyer_door members=E [steps=N] [device=cpu] [env_workers=N] [seed_steps=N]
+[update=default|static|compiled]``.
 
 Training throughput after the seed phase: the protocol's own step (act -> env -> observe) with
 updates on, timed over ``steps`` steps, three times (median). Prints steps/s per member and in
@@ -14,6 +15,7 @@ import time
 import torch
 
 from algorithms.api import DemoSet
+from algorithms.core.sac import UPDATES, use_static_updates
 from harness.data import load_demos
 from harness.envs import ENVS, get_spec
 from harness.protocol import Interaction
@@ -23,20 +25,22 @@ from harness.words import UsageError, optional_integer
 
 
 def bench_train(algo: str, env: str, members: int, steps: int, device: str, repeats: int = 3, seed_steps: int = 1000,
-                log=print, env_workers: int = 0) -> dict:
+                log=print, env_workers: int = 0, update: str = "default") -> dict:
     cls = ALGORITHMS[algo]
     cfg = resolve_algo_config(cls.Config, algo, env, {"all": {"seed_steps": seed_steps}})
     demos = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
     seeds = list(range(members))
     agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
+    if update != "default":
+        use_static_updates(agent, compile=update == "compiled")
     inter = Interaction(env, seeds, env_workers)
     try:
-        return _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers)
+        return _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers, update)
     finally:
         inter.close()
 
 
-def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers) -> dict:
+def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers, update) -> dict:
     inter.start(agent)
     for _ in range(seed_steps + 100):  # past the seed phase, updates on
         inter.step(agent)
@@ -57,7 +61,7 @@ def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_step
         splits.append({k: v / dt for k, v in split.items()})
     rate = statistics.median(rates)
     share = {k: statistics.median(s.get(k, 0.0) for s in splits) for k in splits[0]}
-    log(f"bench train: algo={algo} env={env} members={members} device={device} env_workers={env_workers} "
+    log(f"bench train: algo={algo} env={env} members={members} device={device} env_workers={env_workers} update={update} "
         f"steps={steps} x {repeats}")
     log(f"  steps/s per member: {rate:,.1f}   aggregate: {rate * members:,.1f}   (runs: "
         + ", ".join(f"{r:,.1f}" for r in rates) + ")")
@@ -66,7 +70,7 @@ def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_step
 
 
 def bench_train_cli(ov: dict[str, str]) -> int:
-    allowed = {"algo", "env", "members", "steps", "device", "repeats", "threads", "env_workers"}
+    allowed = {"algo", "env", "members", "steps", "device", "repeats", "threads", "env_workers", "seed_steps", "update"}
     unknown = set(ov) - allowed
     if unknown:
         raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
@@ -75,9 +79,13 @@ def bench_train_cli(ov: dict[str, str]) -> int:
         raise UsageError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
     if env not in ENVS:
         raise UsageError(f"unknown env {env!r}; known envs: {', '.join(ENVS)}")
+    update = ov.get("update", "default")
+    if update not in UPDATES:
+        raise UsageError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
     if "threads" in ov:
         torch.set_num_threads(optional_integer("threads", ov["threads"], 1, 1))
     bench_train(algo, env, optional_integer("members", ov.get("members"), 1, 1), optional_integer("steps", ov.get("steps"), 1000, 1),
                 ov.get("device", "cpu"), optional_integer("repeats", ov.get("repeats"), 3, 1),
-                env_workers=optional_integer("env_workers", ov.get("env_workers"), 0, 0))
+                env_workers=optional_integer("env_workers", ov.get("env_workers"), 0, 0),
+                seed_steps=optional_integer("seed_steps", ov.get("seed_steps"), 1000, 1), update=update)
     return 0

@@ -39,6 +39,7 @@ class RunSpec:
     trial: int | None = None
     env_workers: int = 0  # > 1: the member envs stepped in that many worker processes (harness.env_pool)
     tensorboard: bool = False  # logger=tensorboard: the rows also as TensorBoard events (harness.tensorboard)
+    update: str = "default"  # SAC updates: default, static or compiled (algorithms.core.sac.SAC.use_static_update)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
@@ -73,3 +74,6 @@ class Plan:
     backend: str = "local"  # local (a process pool) or ray (harness.backends)
     ray_address: str | None = None  # a Ray cluster to join; None: start a local one
     calibrate: bool = True  # --dry-run measures the speed of groups not measured yet (harness.calibration)
+    machine: str = ""  # the node the plan was packed for (harness.packing.Machine.describe)
+    packing: tuple[str, ...] = ()  # how members, workers and env_workers were chosen (harness.packing)
+    per_device: int = 1  # processes at once per device (Ray reserves 1/per_device of a GPU per group)

@@ -60,16 +60,24 @@ class CheckpointError(RuntimeError):
     """A checkpoint that cannot be read; the message names the file and the fix."""
 
 
-def load_checkpoint(path: Path) -> dict[str, Any]:
+def load_checkpoint(path: Path, device: str = "cpu") -> dict[str, Any]:
+    """A group's checkpoint with its tensors on ``device`` (a CUDA checkpoint resumes on any GPU of the node). Its
+    random streams belong to the kind of device that wrote it (CPU and CUDA generators differ), so a checkpoint
+    resumes on that kind only; loading its tensors elsewhere (``map_location``) works for inspection."""
     try:
-        ck = torch.load(path, weights_only=False)
+        ck = torch.load(path, weights_only=False, map_location=device)
         if not isinstance(ck, dict) or not {"step", "wall_s", "last_success", "algo", "interaction"} <= set(ck):
             raise ValueError("not a harness checkpoint")
-        return ck
     except Exception as e:  # noqa: BLE001 - torch.load raises many kinds on a truncated or foreign file
         raise CheckpointError(
             f"checkpoint {path} is unreadable ({type(e).__name__}: {' '.join(str(e).split())[:120]}): delete it to "
             "restart these runs from step 0 (their results are rewritten), or restore it from a copy") from None
+    written_on = torch.device(ck.get("device", "cpu")).type
+    if written_on != torch.device(device).type:
+        raise CheckpointError(f"checkpoint {path} was written on {written_on} and its random streams are {written_on} "
+                              f"generators: resume it with device={written_on}, or delete it to restart on "
+                              f"{torch.device(device).type} from step 0")
+    return ck
 
 
 class DivergedError(RuntimeError):
@@ -204,7 +212,7 @@ def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalE
     ckpt_path = spec.checkpoint_path()
     status = "running"
     if ckpt_path.exists():
-        ck = load_checkpoint(ckpt_path)
+        ck = load_checkpoint(ckpt_path, spec.device)
         step, wall, last_success = ck["step"], ck["wall_s"], ck["last_success"]
         algo.load_state_dict(ck["algo"])
         inter.load_state_dict(ck["interaction"])
@@ -227,7 +235,7 @@ def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalE
             d.mirror_to(tb.tagged("train"))
 
     def checkpoint() -> None:
-        state = {"step": step, "wall_s": wall, "last_success": last_success}
+        state = {"step": step, "wall_s": wall, "last_success": last_success, "device": spec.device}
         _atomic_torch_save({**state, "algo": algo.state_dict(), "interaction": inter.state_dict()}, ckpt_path)
 
     def report(rate: float, state: str) -> None:

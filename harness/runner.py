@@ -29,7 +29,9 @@ import numpy as np
 import torch
 import yaml
 
-from harness.envs import ENVS
+from algorithms.core.sac import UPDATES
+from harness.envs import ENVS, env_info
+from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec
 from harness.suites import (
     ConfigError,
@@ -64,6 +66,9 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
     "env_workers": ("0", "worker processes stepping the member envs of each group (0: in the group's process; "
                          "for many seeds per process, e.g. on a GPU)"),
+    "update": ("default", "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed "
+                          "runs), static (one fixed kernel sequence, equal within rounding), compiled (static + "
+                          "torch.compile; CUDA graphs on a GPU)"),
     "logger": ("parquet", "parquet, or tensorboard: the same rows also as TensorBoard events in each run's "
                           "tensorboard/ directory (pip install tensorboard)"),
     "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
@@ -136,8 +141,9 @@ class Unit:
     algo_class: str
     steps: int
     seeds: list[int]
-    members: int
+    members: int | None  # the suite's or cell's own value (None: harness.packing chooses)
     config: dict[str, Any]
+    cpu_members: int = 1  # a CPU run's members when nothing is given (cells: the cell's seeds)
 
 
 @dataclass(frozen=True)
@@ -164,7 +170,8 @@ class RunRequest:
     ray_address: str | None = None
     calibrate: bool = True
     logger: str = "parquet"
-    env_workers: int = 0
+    env_workers: int | None = None
+    update: str = "default"
     config: dict[str, dict[str, Any]] = field(default_factory=dict)
     study: str | None = None
     trial: int | None = None
@@ -191,6 +198,9 @@ class RunRequest:
             raise ConfigError("ray_address is only used with backend=ray")
         device = check_device(ov.get("device", "cpu"), local=not (backend == "ray" and ov.get("ray_address")))
 
+        update = ov.get("update", "default")
+        if update not in UPDATES:
+            raise ConfigError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
         logger = ov.get("logger", "parquet")
         if logger not in LOGGERS:
             raise ConfigError(f"unknown logger {logger!r}; known: {', '.join(LOGGERS)}")
@@ -211,7 +221,7 @@ class RunRequest:
             members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
             results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
             calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
-            env_workers=_int("env_workers", ov.get("env_workers", 0), 0, MAX_WORKERS),
+            env_workers=opt("env_workers", 0, MAX_WORKERS), update=update,
         )
 
 
@@ -232,7 +242,7 @@ def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     envs = list(req.envs) or names("env", suite.get("envs") or [])
     _check_envs_algos(envs, algos)
     seeds = list(req.seeds) if req.seeds is not None else parse_seeds(suite.get("seeds", 1))
-    members = _int("members", suite.get("members", 1), 1, MAX_MEMBERS)
+    members = _int("members", suite["members"], 1, MAX_MEMBERS) if "members" in suite else None
     steps_cfg = req.steps if req.steps is not None else suite.get("steps", DEFAULT_STEPS)
     units = []
     for env in envs:
@@ -276,8 +286,9 @@ def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
             continue
         seeds = list(req.seeds) if req.seeds is not None else parse_seeds(c.get("seeds", suite.get("seeds", 1)))
         steps = req.steps if req.steps is not None else _int(f"steps of {where}", c["steps"], 1, MAX_STEPS)
-        members = _int(f"members of {where}", c.get("members", suite.get("members", len(seeds))), 1, MAX_MEMBERS)
-        units.append(Unit(env, name, algo, steps, seeds, members, dict(config)))
+        given = c.get("members", suite.get("members"))
+        members = None if given is None else _int(f"members of {where}", given, 1, MAX_MEMBERS)
+        units.append(Unit(env, name, algo, steps, seeds, members, dict(config), cpu_members=len(seeds)))
     if not units:
         raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(pick_algos)) or '*'} "
                           f"env={','.join(sorted(pick_envs)) or '*'}")
@@ -327,8 +338,11 @@ def build_plan(req: RunRequest) -> Plan:
     check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, req.config)
     protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
     sha = git_sha()
+    machine = Machine.detect()
+    packing = pack([Work(len(u.seeds), u.steps, env_info(u.env).spec.obs_dim, env_info(u.env).spec.act_dim, u.members,
+                         u.cpu_members) for u in units], req.device, machine, req.members, req.workers, req.env_workers)
     groups: list[RunSpec] = []
-    for u in units:
+    for u, members in zip(units, packing.members):
         fwd = load_demos(u.env, "forward")  # fails early, with one line, if the data is missing
         cls = ALGORITHMS[u.algo_class]
         cell_layer = {u.algo_class: u.config} if u.config else {}
@@ -337,16 +351,17 @@ def build_plan(req: RunRequest) -> Plan:
         if u.name != u.algo_class:
             ident["algo_class"] = u.algo_class
         h = config_hash(ident)
-        members = req.members or u.members
         groups += [RunSpec(suite=suite_name, env=u.env, algo=u.name, algo_class=u.algo_class,
                            seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
-                           eval_episodes=eval_episodes, checkpoint_every=ckpt, log_every=log_every, device=req.device,
-                           results=req.results, config=cfg_plain, config_hash=h, demo_source=fwd.source, git_sha=sha,
-                           study=req.study, trial=req.trial, tensorboard=req.logger == "tensorboard", env_workers=req.env_workers)
-                   for i in range(0, len(u.seeds), members)]
-    workers = req.workers or min(os.cpu_count() or 1, MAX_WORKERS)
-    plan = Plan(suite_name, groups, workers=min(workers, max(len(groups), 1)), backend=req.backend,
-                ray_address=req.ray_address, calibrate=req.calibrate)
+                           eval_episodes=eval_episodes, checkpoint_every=ckpt, log_every=log_every,
+                           device=packing.device_of(len(groups) + n), results=req.results, config=cfg_plain,
+                           config_hash=h, demo_source=fwd.source, git_sha=sha, study=req.study, trial=req.trial,
+                           tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
+                           update=req.update)
+                   for n, i in enumerate(range(0, len(u.seeds), members))]
+    plan = Plan(suite_name, groups, workers=packing.workers, backend=req.backend, ray_address=req.ray_address,
+                calibrate=req.calibrate, machine=machine.describe(), packing=packing.reasons,
+                per_device=packing.per_device)
     check_results_dirs(plan)
     return plan
 
@@ -479,13 +494,17 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
         "eval_episodes": spec.eval_episodes, "device": spec.device, "group_seeds": list(spec.seeds),
         "config": spec.config, "config_hash": spec.config_hash, "demo_source": spec.demo_source,
         **demos_fingerprint(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
-        "python": sys.version.split()[0],
+        "python": sys.version.split()[0], "update": spec.update,
     }
     for d, s in zip(spec.member_dirs(), spec.seeds):
         atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
     cls = ALGORITHMS[spec.algo_class]
     demos = DemoSet(load_demos(spec.env, "forward"), load_demos(spec.env, "reverse"))
     algo = cls(get_spec(spec.env), demos, cls.Config.from_dict(spec.config), list(spec.seeds), torch.device(spec.device))
+    if spec.update != "default":
+        from algorithms.core.sac import use_static_updates
+
+        use_static_updates(algo, compile=spec.update == "compiled")
     train(spec, algo, lambda p: say(progress_line(spec.label, p)), should_stop)
 
 
@@ -532,6 +551,10 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
     print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g.seeds) for g in plan.groups)} run(s), "
           f"{steps:,} env steps in all" + (f" ({left:,} left to run; the rest is done or checkpointed)" if left < steps else "")
           + f", {plan.workers} worker(s)")
+    if plan.machine:
+        devices = sorted({g.device for g in plan.groups})
+        print(f"packed for {plan.machine}: {plan.workers} process(es) at once on {', '.join(devices)}"
+              + "".join(f"; {r}" for r in plan.packing))
     threads = calibration.worker_threads(plan.workers)
     todo = [i for i, (t, d) in enumerate(zip(total, done)) if d < t]
     rates = dict(zip(todo, calibration.rates([plan.groups[i] for i in todo], threads, calibrate)))

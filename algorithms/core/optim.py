@@ -43,6 +43,15 @@ class FlatMembers:
                 offset += p.numel()
         self.views = self.member_views(self.flat)
 
+    def param_views(self, flat: torch.Tensor) -> list[torch.Tensor]:
+        """Views of a tensor in the flat layout as one (E, n_j) view per parameter j: whole-tensor arithmetic with a
+        per-member (E, 1) mask or scalar, as the static-shape paths use."""
+        out, offset = [], 0
+        for p in self.params:
+            out.append(flat[offset : offset + p.numel()].view(self.num_members, -1))
+            offset += p.numel()
+        return out
+
     def member_views(self, flat: torch.Tensor) -> list[list[torch.Tensor]]:
         """Views of a tensor in the flat layout (the parameters themselves, or optimizer state shaped like them) as
         ``views[i][j]``: member i's contiguous slice of parameter j (with its replicas, member-major)."""
@@ -84,6 +93,10 @@ class MemberAdam:
         self.step_count = torch.zeros(num_members, dtype=torch.float32, device=flat.device)  # like torch's float step
         self._views = {"param": self.members.views, "exp_avg": self.members.member_views(self.exp_avg),
                        "exp_avg_sq": self.members.member_views(self.exp_avg_sq)}
+        # the static path reaches the parameters through the modules' own tensors (not views of ``flat``): a compiled
+        # graph may then take them together with the forward pass's reads of the same parameters
+        self._by_param = list(zip(self.members.params, self.members.param_views(self.exp_avg),
+                                  self.members.param_views(self.exp_avg_sq)))
 
     @property
     def params(self) -> list[nn.Parameter]:
@@ -116,6 +129,25 @@ class MemberAdam:
             lr=self.lr, beta1=beta1, beta2=beta2, weight_decay=0.0, eps=self.eps, amsgrad=False, maximize=False,
         )
 
+    @torch.no_grad()
+    def step_masked(self, mask: torch.Tensor, grads: Sequence[torch.Tensor]) -> None:
+        """:meth:`step` as whole-tensor arithmetic: ``mask`` is a bool (E,) tensor on the device, every member is
+        computed and those outside ``mask`` keep their values (``torch.where``). No host decision and static shapes,
+        so it can be captured (CUDA graphs) or compiled; equal to :meth:`step` within float rounding (the same formula,
+        PyTorch's, evaluated by other kernels), members outside ``mask`` bitwise unchanged."""
+        E, (beta1, beta2) = self.members.num_members, self.betas
+        self.step_count.add_(mask.to(self.step_count.dtype))
+        step = self.step_count[:, None]
+        step_size = self.lr / (1.0 - torch.pow(beta1, step))  # inf for members that never stepped: not selected
+        bias2_sqrt = (1.0 - torch.pow(beta2, step)).sqrt()
+        keep = mask[:, None]
+        for (param, exp_avg, exp_avg_sq), grad in zip(self._by_param, grads):
+            grad, param = grad.reshape(E, -1), param.view(E, -1)
+            exp_avg.copy_(torch.where(keep, exp_avg.lerp(grad, 1.0 - beta1), exp_avg))
+            exp_avg_sq.copy_(torch.where(keep, exp_avg_sq * beta2 + (1.0 - beta2) * grad * grad, exp_avg_sq))
+            denom = exp_avg_sq.sqrt() / bias2_sqrt + self.eps
+            param.copy_(torch.where(keep, param - step_size * exp_avg / denom, param))
+
     def state_dict(self) -> dict:
         return {
             "exp_avg": self.exp_avg.clone(),
@@ -141,3 +173,12 @@ def polyak_update(target: FlatMembers, source: FlatMembers, tau: float, mask=Non
     if active:
         dst, src = target.views, source.views
         torch._foreach_lerp_([v for i in active for v in dst[i]], [v for i in active for v in src[i]], tau)
+
+
+@torch.no_grad()
+def polyak_update_masked(target: FlatMembers, source: FlatMembers, tau: float, mask: torch.Tensor) -> None:
+    """:func:`polyak_update` with a device bool (E,) ``mask`` and static shapes (see ``MemberAdam.step_masked``)."""
+    keep, E = mask[:, None], target.num_members
+    for dst, src in zip(target.params, source.params):
+        dst, src = dst.view(E, -1), src.view(E, -1)
+        dst.copy_(torch.where(keep, dst.lerp(src, tau), dst))

@@ -29,7 +29,7 @@ from .nets import (
     member_generators,
     member_randn,
 )
-from .optim import FlatMembers, MemberAdam, polyak_update
+from .optim import FlatMembers, MemberAdam, polyak_update, polyak_update_masked
 
 HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
@@ -122,6 +122,20 @@ class SAC:
 
         self.act_generators = member_generators(self.seeds, self.device, Stream.SAC_ACT)
         self.update_generators = member_generators(self.seeds, self.device, Stream.SAC_UPDATE)
+        self.static = False  # see use_static_update
+        self._static_fn = self._update
+        self._all_members = torch.ones(E, dtype=torch.bool, device=self.device)
+
+    def use_static_update(self, compile: bool = False) -> None:
+        """Run every later update on the static-shape path: the member mask becomes a device tensor and the optimizer
+        and target steps whole-tensor arithmetic (``MemberAdam.step_masked``), so the update after its noise draw is
+        one fixed sequence of kernels with no host decision. ``compile``: through ``torch.compile`` (on CUDA with
+        ``mode="reduce-overhead"``, i.e. replayed as CUDA graphs). Equal to the default path within float rounding;
+        the default path alone keeps an E-member agent bitwise equal to E single-seed ones."""
+        self.static = True
+        if compile:
+            mode = "reduce-overhead" if self.device.type == "cuda" else None
+            self._static_fn = torch.compile(self._update, mode=mode, dynamic=False)
 
     @property
     def alpha(self) -> torch.Tensor:
@@ -184,14 +198,35 @@ class SAC:
         evaluated once on [o'; o]: its parameters do not change before the actor step, so the target's next action and
         the actor loss's action come from one forward pass, as they would from two.
         """
-        cfg, E = self.cfg, self.num_members
-        mask_host = host_mask(mask, E)
-        obs, action = batch["obs"], batch["action"]
-        reward = batch["reward"] if reward is None else reward
-        B = obs.shape[1]
+        mask_host = host_mask(mask, self.num_members)
+        B = batch["obs"].shape[1]
         # all update noise at once: [next-action sample, actor sample, fresh temperature sample]
         noise = member_randn(self.update_generators, (3, B, self.act_dim), mask_host, self.device)
+        reward = batch["reward"] if reward is None else reward
+        if self.static:
+            keep = self._all_members if mask_host is None else torch.as_tensor(mask_host, device=self.device)
+            return self._static_fn(batch, reward, noise, keep)
+        return self._update(batch, reward, noise, mask_host)
+
+    def _update(self, batch: dict, reward: torch.Tensor, noise: torch.Tensor, mask) -> dict[str, torch.Tensor]:
+        """The update after its noise draw. ``mask``: a host bool array or None (per-member optimizer kernels: the
+        default path), or a bool tensor on the device (the static path, see :meth:`use_static_update`)."""
+        cfg = self.cfg
+        obs, action = batch["obs"], batch["action"]
+        B = obs.shape[1]
         alpha = self.alpha
+        if isinstance(mask, torch.Tensor):
+            def opt_step(opt, grads):
+                opt.step_masked(mask, grads)
+
+            def target_step():
+                polyak_update_masked(self.target_params, self.critic_opt.members, cfg.tau, mask)
+        else:
+            def opt_step(opt, grads):
+                opt.step(mask, grads)
+
+            def target_step():
+                polyak_update(self.target_params, self.critic_opt.members, cfg.tau, mask)
 
         actor_out, actor_cache = manual.actor_forward(self.actor, torch.cat([batch["next_obs"], obs], dim=1))
         mean, log_std_raw = actor_out.chunk(2, dim=-1)
@@ -203,7 +238,7 @@ class SAC:
         diff = q - target_q.unsqueeze(1)
         critic_loss = 0.5 * diff.square().mean(dim=2).sum(dim=1)
         critic_grads, _ = manual.critic_backward(self.critic, critic_cache, diff / B)
-        self.critic_opt.step(mask_host, critic_grads)
+        opt_step(self.critic_opt, critic_grads)
 
         # 2. actor: mean(alpha * log pi(a|o) - min Q(o, a)), a = tanh(u), u = mu + sigma * eps, with the updated critic
         # (gradients reach the actor's parameters only)
@@ -222,7 +257,7 @@ class SAC:
         in_range = (log_std_raw[:, B:] >= cfg.log_std_min) & (log_std_raw[:, B:] <= cfg.log_std_max)
         d_log_std = (d_u * std * eps - d_log_prob) * in_range
         d_out = torch.cat([d_u, d_log_std], -1)
-        self.actor_opt.step(mask_host, manual.actor_backward(self.actor, actor_cache, d_out, slice(B, None)))
+        opt_step(self.actor_opt, manual.actor_backward(self.actor, actor_cache, d_out, slice(B, None)))
 
         # 3. temperature: FRESH sample from the updated actor; loss mean(alpha * (-log pi - H_target)), whose gradient
         # with respect to log alpha is the loss itself
@@ -230,10 +265,10 @@ class SAC:
         u = fresh_mean + fresh_log_std.exp() * noise[:, 2]
         fresh_log_prob = squashed_gaussian_log_prob(u, noise[:, 2], fresh_log_std)
         alpha_loss = self.log_alpha.exp() * (-fresh_log_prob - self.target_entropy).mean(dim=1)
-        self.alpha_opt.step(mask_host, [alpha_loss])
+        opt_step(self.alpha_opt, [alpha_loss])
 
         # 4. target critic
-        polyak_update(self.target_params, self.critic_opt.members, cfg.tau, mask_host)
+        target_step()
 
         return {
             "critic_loss": critic_loss,
@@ -275,3 +310,16 @@ class SAC:
         self.alpha_opt.load_state_dict(state["alpha_opt"])
         load_generator_states(self.act_generators, state["act_generators"])
         load_generator_states(self.update_generators, state["update_generators"])
+
+
+#: how SAC updates run: default (per-member optimizer kernels), static (SAC.use_static_update), compiled (+ torch.compile)
+UPDATES = ("default", "static", "compiled")
+
+
+def use_static_updates(algo, compile: bool = False) -> int:
+    """Switch every SAC agent that ``algo`` holds as an attribute to :meth:`SAC.use_static_update`; returns how many
+    (the forward and backward agents of MEDAL, the one agent of RISC, ...)."""
+    agents = [a for a in vars(algo).values() if isinstance(a, SAC)]
+    for agent in agents:
+        agent.use_static_update(compile)
+    return len(agents)
