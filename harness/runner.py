@@ -58,13 +58,13 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "eval_episodes": ("10", "episodes per evaluation"),
     "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every)"),
     "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every)"),
-    "members": ("1 (cells: the cell's seeds)", "seeds trained in lockstep by one process"),
-    "workers": ("cores", "processes running groups in parallel"),
+    "members": ("1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)", "seeds trained in lockstep by one process"),
+    "workers": ("cores (cuda: what the GPUs' memory and the cores hold)", "processes running groups in parallel"),
     "device": ("cpu", "torch device, e.g. cpu or cuda:0"),
     "results": ("results", "results directory"),
     "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
-    "env_workers": ("0", "worker processes stepping the member envs of each group (0: in the group's process; "
+    "env_workers": ("0 (cuda: spare cores)", "worker processes stepping the member envs of each group (0: in the group's process; "
                          "for many seeds per process, e.g. on a GPU)"),
     "update": ("default", "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed "
                           "runs), static (one fixed kernel sequence, equal within rounding), compiled (static + "
