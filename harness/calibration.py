@@ -44,7 +44,7 @@ def machine() -> str:
 
 
 def key(group: RunSpec, threads: int) -> str:
-    return "|".join([machine(), group.device, f"threads={threads}", group.algo_class, group.env,
+    return "|".join([machine(), torch.device(group.device).type, f"threads={threads}", group.algo_class, group.env,
                      f"members={len(group.seeds)}", group.config_hash]
                     + ([f"env_workers={group.env_workers}"] if group.env_workers > 1 else []))
 

@@ -13,6 +13,9 @@ or cell's own ``members`` wins over the automatic choice.
   on a multi-GPU node uses every GPU; ``cuda:K`` pins one), as many per GPU as fit its memory and the node's cores
   (each process needs a core for its Python loop). Cores left over step the member envs in worker processes
   (:mod:`harness.env_pool`) when a group is large enough for it to pay.
+
+The machine is the one ``harness run`` starts on. With ``backend=ray ray_address=...`` the cluster is elsewhere: Ray
+places the groups by their resources (1/``per_device`` of a GPU each), and ``members=`` sizes them.
 """
 
 from __future__ import annotations

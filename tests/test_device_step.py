@@ -60,7 +60,7 @@ def test_a_training_step_reads_the_device_once(algo, monkeypatch):
     inter = Interaction(ENV, [0, 1])
     try:
         inter.start(agent)
-        for _ in range(40):  # past the seed phase: updates on
+        for _ in range(30):  # past the seed phase: updates on
             inter.step(agent)
         reads = collections.Counter()
         cpu = torch.Tensor.cpu
@@ -70,7 +70,7 @@ def test_a_training_step_reads_the_device_once(algo, monkeypatch):
             return cpu(self, *args, **kwargs)
 
         monkeypatch.setattr(torch.Tensor, "cpu", counted_cpu)
-        n, per_step = 150, []
+        n, per_step = 100, []
         with DeviceReads() as mode:
             for _ in range(n):
                 before = reads["cpu"]

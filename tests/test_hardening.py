@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 
 from harness.cli import main
@@ -255,6 +256,22 @@ def test_corrupt_checkpoint_stale_temp_files_and_strict_status_json(tmp_path, ca
     assert main(words) == 0 and _state(d) == "done"
     rec = yaml.safe_load((d / "run.yaml").read_text())
     assert rec["demos_sha256"] and Path(rec["data_dir"]).is_dir()
+
+
+@requires_data
+def test_a_checkpoint_resumes_only_on_the_kind_of_device_that_wrote_it(tmp_path, capsys):
+    """Random streams are per device kind (CPU mt19937, CUDA Philox): a CUDA checkpoint met on the CPU is one line."""
+    words = ["run", "algo=naive", "env=tabletop_manipulation", "steps=400", "eval_every=200", "checkpoint_every=200",
+             *TINY, f"results={tmp_path}", "workers=1"]
+    assert main(["steps=200" if w.startswith("steps=") else w for w in words]) == 0
+    ckpt = next(tmp_path.rglob("checkpoint.pt"))
+    ck = torch.load(ckpt, weights_only=False)
+    assert ck["device"] == "cpu"
+    torch.save({**ck, "device": "cuda:1"}, ckpt)  # as a GPU run writes it
+    capsys.readouterr()
+    assert main(words) == 1
+    err = capsys.readouterr().err
+    assert "was written on cuda" in err and "resume it with device=cuda" in err and "Traceback" not in err
 
 
 @requires_data
