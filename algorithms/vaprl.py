@@ -48,6 +48,7 @@ from algorithms.goal_conditioned import AuxCritic, GCConfig, GoalConditioned, po
 
 RELABEL = ("final", "final_failed", "future_demo", "none")
 CURRICULUM = ("lagrangian", "nearest_feasible")
+CANDIDATES = ("demos", "replay")
 VALUE_CRITIC = ("sac", "separate")
 ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # TF1 AdamOptimizer defaults (the multiplier's optimizer)
 
@@ -71,6 +72,10 @@ class VaPRLConfig(GCConfig):
     value_critic: str = setting("sac", "value for the curriculum: the SAC critic, or a separate no-entropy critic",
                                 choices=VALUE_CRITIC)
     value_actions: int = 1  # num_action_samples of the original code
+    candidates: str = setting("demos", "subgoal candidates: demos = the demo states (fixed), replay = num_candidates "
+                                       "states drawn from the replay buffer at each choice (the original code's flag "
+                                       "default, num_reset_candidates)", choices=CANDIDATES)
+    num_candidates: int = setting(1000, "replay: candidates drawn per choice", ge=1, le=1_000_000)
     use_minimum: bool = setting(True, "V = min(V(s_now -> c), V(c -> g*)) (use_minimum)")
     kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
     v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
@@ -80,6 +85,11 @@ class VaPRLConfig(GCConfig):
                                  ge=0, le=1)
     lagrange_max: float = setting(math.inf, "upper clip of the multiplier", ge=0)
     buffer_capacity: int = 100_000_000
+
+    def validate(self) -> None:
+        super().validate()
+        if self.candidates == "replay" and self.curriculum != "lagrangian":
+            raise ValueError("candidates=replay needs curriculum=lagrangian (replay states have no demo time index)")
 
 
 @dataclass
@@ -201,8 +211,8 @@ class VaPRL(GoalConditioned):
     def __init__(self, task: Task, demos: DemoSet, cfg: VaPRLConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
         self.candidates, self.time_distance = subgoal_candidates(demos.forward, demos.reverse, task.state_dim)
-        rho0 = np.asarray(task.initial_states, dtype=np.float32).mean(axis=0)
-        self.l2_distance = np.linalg.norm(self.candidates - rho0, axis=1)
+        self.rho0 = np.asarray(task.initial_states, dtype=np.float32).mean(axis=0)
+        self.l2_distance = np.linalg.norm(self.candidates - self.rho0, axis=1)
         self.value = (AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, Stream.VALUE_CRITIC)
                       if cfg.value_critic == "separate" else None)
         self.sac_value_gens = member_generators(seeds, self.device, Stream.SAC_VALUE)
@@ -234,19 +244,33 @@ class VaPRL(GoalConditioned):
         bwd = mask & (self.direction != FORWARD)
         if bwd.any():
             self._draw_task_goals(bwd)  # the backward subgoal serves the next forward phase's goal
-            values = self.candidate_values(bwd)
+            cands, l2, time = self.current_candidates(bwd)
+            values = self.candidate_values(cands, bwd)
             for i in np.flatnonzero(bwd):
                 if self.cfg.curriculum == "lagrangian":
-                    k = lagrangian_subgoal(values[i], self.l2_distance, self.lagrange.value[i])
+                    k = lagrangian_subgoal(values[i], l2[i], self.lagrange.value[i])
                     self.lagrange.record(i, values[i, k])
                 else:
-                    k = choose_subgoal(values[i], self.time_distance, self.threshold)
+                    k = choose_subgoal(values[i], time[i], self.threshold)
                 self.subgoal_index[i] = k
-                out[i] = self.candidates[k]
+                out[i] = cands[i, k]
                 self.log.add_host("curriculum/", {"subgoal_value": values[:, k], "subgoal_l2_distance":
-                                                  np.full(self.E, self.l2_distance[k]), "subgoal_time_distance":
-                                                  np.full(self.E, float(self.time_distance[k]))}, np.arange(self.E) == i)
+                                                  np.full(self.E, l2[i, k]), "subgoal_time_distance":
+                                                  np.full(self.E, float(time[i, k]))}, np.arange(self.E) == i)
         return out
+
+    def current_candidates(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per member: candidate states (E, N, state_dim), their L2 distance to mean(rho0) (E, N) and demo time
+        index (E, N; NaN for replay states). ``demos``: the fixed demo states; ``replay``: ``num_candidates`` states
+        each member draws from its replay buffer (demos, visited states, relabelled copies), as the original code's
+        ``replay_buffer.get_next(num_reset_candidates)``."""
+        E, sd = self.E, self.task.state_dim
+        if self.cfg.candidates == "demos":
+            n = len(self.candidates)
+            return (np.broadcast_to(self.candidates, (E, n, sd)), np.broadcast_to(self.l2_distance, (E, n)),
+                    np.broadcast_to(self.time_distance.astype(np.float64), (E, n)))
+        states = self.buffer.sample_states(self.cfg.num_candidates, mask)[:, :, :sd].cpu().numpy()
+        return states, np.linalg.norm(states - self.rho0, axis=2), np.full(states.shape[:2], np.nan)
 
     def _values(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """V(o) for obs (E, N, O): the configured critic, mean over ``value_actions`` policy actions of min_j Q_j."""
@@ -258,17 +282,18 @@ class VaPRL(GoalConditioned):
                              self.cfg.value_actions)
         return v.cpu().numpy()
 
-    def candidate_values(self, mask: np.ndarray) -> np.ndarray:
-        """V(c, g*) for every candidate c and each member's task goal: (E, N); with ``use_minimum`` the min with
-        V(s_now, c), the value of reaching c from the state the backward phase starts in."""
-        sd, N = self.task.state_dim, len(self.candidates)
+    def candidate_values(self, cands: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """V(c, g*) for each member's candidates ``cands`` (E, N, state_dim) and task goal: (E, N); with
+        ``use_minimum`` the min with V(s_now, c), the value of reaching c from the state the backward phase starts
+        in."""
+        sd, N = self.task.state_dim, cands.shape[1]
         obs = np.empty((self.E, N, self.task.obs_dim), dtype=np.float32)
-        obs[:, :, :sd] = self.candidates
+        obs[:, :, :sd] = cands
         obs[:, :, sd:] = self.task_goal[:, None]
         values = self._values(obs, mask)
         if self.cfg.use_minimum:
             obs[:, :, :sd] = self.phase_obs[:, None, :sd]
-            obs[:, :, sd:] = self.candidates
+            obs[:, :, sd:] = cands
             values = np.minimum(values, self._values(obs, mask))
         return values
 

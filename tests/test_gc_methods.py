@@ -186,7 +186,7 @@ def test_vaprl_risc_subgoal_from_value_table(monkeypatch):
     v = _make(VaPRLRISC, VaPRLRISCConfig, kappa=0.5)
     N = len(v.candidates)
     table = np.zeros((1, N))
-    monkeypatch.setattr(v, "candidate_values", lambda mask: table)
+    monkeypatch.setattr(v, "candidate_values", lambda cands, mask: table)
     v.on_reset(np.zeros((1, v.task.obs_dim), np.float32), np.ones(1, bool))
     v.direction[:] = BACKWARD
     table[0, [30, 700, 1500]] = [6.0, 5.0, 9.0]  # eps = 5: feasible {30, 700, 1500}
@@ -198,7 +198,7 @@ def test_vaprl_risc_subgoal_from_value_table(monkeypatch):
     np.testing.assert_array_equal(v.phase_goals(np.ones(1, bool))[0], v.candidates[42])
     # the real value function: shape and finiteness
     monkeypatch.undo()
-    vals = v.candidate_values(np.ones(1, bool))
+    vals = v.candidate_values(v.current_candidates(np.ones(1, bool))[0], np.ones(1, bool))
     assert vals.shape == (1, N) and np.isfinite(vals).all()
 
 
@@ -299,13 +299,37 @@ def test_vaprl_uses_the_original_codes_behaviour():
     # the curriculum: lambda 0 picks the candidate nearest rho0; use_minimum takes the smaller value
     seen = []
     v._values = lambda obs, mask: (seen.append(obs.copy()), np.full(obs.shape[:2], float(len(seen))))[1]
-    vals = v.candidate_values(np.ones(1, bool))
+    vals = v.candidate_values(v.current_candidates(np.ones(1, bool))[0], np.ones(1, bool))
     np.testing.assert_array_equal(vals, 1.0)  # min(1, 2)
     np.testing.assert_array_equal(seen[1][0, :, 6:], v.candidates)  # second pass: goal = candidate
     np.testing.assert_array_equal(seen[1][0, :, :6], np.broadcast_to(v.phase_obs[0, :6], v.candidates.shape))
     v.direction[:] = BACKWARD
     g = v.phase_goals(np.ones(1, bool))[0]
     np.testing.assert_array_equal(g, v.candidates[np.argmin(v.l2_distance)])
+
+
+def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
+    """candidates=replay (the original code's num_reset_candidates): each choice draws fresh states from the member's
+    own replay buffer; the Lagrangian rule then runs on their L2 distance to mean(rho0)."""
+    v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), candidates="replay", num_candidates=64, seed_steps=10**6,
+              phase_step_limit=20)
+    _run(v, ENV, (0, 1), 45)  # a forward and a backward phase: visited states join the demos in the buffers
+    sd, mask = v.task.state_dim, np.ones(2, bool)
+    first, l2, time = v.current_candidates(mask)
+    second, _, _ = v.current_candidates(mask)
+    assert first.shape == (2, 64, sd) and np.isnan(time).all() and not np.array_equal(first, second)  # fresh draws
+    for i in range(2):  # every candidate is a state member i stored
+        stored = v.buffer.data["obs"][i, : v.buffer.size[i], :sd].numpy()
+        assert all((np.abs(stored - c).max(axis=1) == 0).any() for c in first[i])
+    np.testing.assert_allclose(l2, np.linalg.norm(first - v.rho0, axis=2), rtol=1e-6)
+    v.direction[:] = BACKWARD
+    v._values = lambda obs, mask: np.zeros(obs.shape[:2])  # lambda 0 and equal values: the state nearest rho0
+    before = v.buffer.generators[0].get_state()
+    goals = v.phase_goals(mask)
+    assert not torch.equal(before, v.buffer.generators[0].get_state())  # the draw came from the member's stream
+    assert goals.shape == (2, sd)
+    with pytest.raises(ValueError, match="candidates=replay needs curriculum=lagrangian"):
+        VaPRLConfig(candidates="replay", curriculum="nearest_feasible").validate()
 
 
 def test_vaprl_config_rejects_unknown_choices():

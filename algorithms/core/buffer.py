@@ -272,6 +272,11 @@ class SegmentReplayBuffer(MemberStorage):
             "truncated": d["truncated"][rows, k],
         }
 
+    def sample_states(self, n: int, mask=None) -> torch.Tensor:
+        """``n`` stored observations per member (E, n, obs_dim), uniform with replacement over every stored step (segment
+        starts included), from the members' sampling streams; rows of members outside ``mask`` are unspecified."""
+        return self.data["obs"][self._rows, self._draw(self.size, n, mask)]
+
     @property
     def num_transitions(self) -> torch.Tensor:
         return torch.as_tensor(self.n_valid)
