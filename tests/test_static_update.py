@@ -116,11 +116,15 @@ def test_compiled_static_update_equals_the_uncompiled_one(device):
 
 
 @requires_data
-def test_harness_run_with_static_updates(tmp_path):
+def test_harness_run_with_static_updates(tmp_path, monkeypatch):
     """``update=static`` reaches every SAC agent of the run (MEDAL: forward and backward) and is recorded; the curve
     agrees with the default update's until the updates start (bitwise), and within rounding after."""
     words = ["algo=medal", "env=tabletop_manipulation", "steps=300", "eval_every=100", "eval_episodes=1",
              "medal.seed_steps=100", "medal.batch_size=16"]
+    switched = []
+    real = SAC.use_static_update
+    monkeypatch.setattr(SAC, "use_static_update", lambda self, compile=False: (switched.append(self),
+                                                                                real(self, compile))[1])
     tables = {}
     for update in ("default", "static"):
         (spec,) = plan_words([*words, f"update={update}", f"results={tmp_path / update}"]).groups
@@ -128,6 +132,7 @@ def test_harness_run_with_static_updates(tmp_path):
         run = spec.member_dirs()[0]
         assert yaml.safe_load((run / "run.yaml").read_text())["update"] == update
         tables[update] = pd.read_parquet(run / "evals.parquet").query("metric == 'deployed_return'")
+    assert len(switched) == 2 and all(agent.static for agent in switched)  # MEDAL's forward and backward agents
     a, b = (tables[u].set_index("step").value for u in ("default", "static"))
     assert a.loc[0] == b.loc[0] and a.loc[100] == b.loc[100]  # no update before step 100
     np.testing.assert_allclose(b.to_numpy(), a.to_numpy(), rtol=1e-3, atol=1e-3)
@@ -140,3 +145,18 @@ def test_use_static_updates_finds_every_agent():
 
     algo = TwoAgents()
     assert use_static_updates(algo) == 2 and algo.forward.static and algo.backward.static
+
+
+@requires_data
+@pytest.mark.parametrize("algo", ["naive", "oracle", "fbrl", "r3l", "medal", "gail_naive", "risc", "vaprl", "bc"])
+def test_use_static_updates_reaches_the_agents_of_registered_methods(algo):
+    from algorithms.api import DemoSet
+    from harness.data import load_demos
+    from harness.envs import get_spec
+    from harness.registry import ALGORITHMS
+
+    cls, env = ALGORITHMS[algo], "tabletop_manipulation"
+    agent = cls(get_spec(env), DemoSet(load_demos(env, "forward"), load_demos(env, "reverse")), cls.Config(), [0],
+                torch.device("cpu"))
+    want = {"bc": 0, "fbrl": 2, "r3l": 2, "medal": 2}.get(algo, 1)  # bc has no SAC agent
+    assert use_static_updates(agent) == want
