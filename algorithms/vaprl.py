@@ -76,6 +76,9 @@ class VaPRLConfig(GCConfig):
                                        "states drawn from the replay buffer at each choice (the original code's flag "
                                        "default, num_reset_candidates)", choices=CANDIDATES)
     num_candidates: int = setting(1000, "replay: candidates drawn per choice", ge=1, le=1_000_000)
+    relabel_demos: bool = setting(False, "before training, add every demo prefix once more per later demo state, that "
+                                         "state as its goal, cut at its first success (the original code's "
+                                         "relabel_offline_data)")
     use_minimum: bool = setting(True, "V = min(V(s_now -> c), V(c -> g*)) (use_minimum)")
     kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
     v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
@@ -163,6 +166,20 @@ def final_state_relabel(phase: np.ndarray, state_dim: int, act_dim: int, is_succ
             "rewards": success[:end].astype(np.float32), "next_observations": next_obs[:end], "terminals": terminal}
 
 
+def demo_prefix_relabel(demos, state_dim: int, act_dim: int, is_success) -> dict[str, np.ndarray]:
+    """The original code's ``relabel_offline_data`` (``data_multiplier``): for every demo and every state s_j it reaches
+    (j = 1..L), one copy of the demo's first j transitions with goal s_j, cut at its first success for that goal
+    (:func:`final_state_relabel`), so each copy ends terminal with reward 1. Returned as one flat demo set (``add_demo``
+    keyword arrays): about L^2 / 2 transitions per demo of length L."""
+    sd = state_dim
+    rows = np.concatenate([demos.observations[:, :sd], demos.actions, demos.next_observations[:, :sd]], axis=1)
+    starts, segment = demo_segments(demos.terminals)
+    ends = np.append(starts[1:], len(segment))
+    copies = [final_state_relabel(rows[a : a + j], sd, act_dim, is_success)
+              for a, b in zip(starts, ends) for j in range(1, b - a + 1)]
+    return {k: np.concatenate([c[k] for c in copies]) for k in copies[0]}
+
+
 class LagrangeMultiplier:
     """One scalar per member, >= 0, minimised by Adam on mean(lambda * (V_chosen - threshold)) over the subgoals chosen
     since the last step: it grows while chosen subgoals are below the threshold (subgoals move toward the goal) and
@@ -213,6 +230,9 @@ class VaPRL(GoalConditioned):
         self.candidates, self.time_distance = subgoal_candidates(demos.forward, demos.reverse, task.state_dim)
         self.rho0 = np.asarray(task.initial_states, dtype=np.float32).mean(axis=0)
         self.l2_distance = np.linalg.norm(self.candidates - self.rho0, axis=1)
+        if cfg.relabel_demos:
+            for d in (demos.forward, demos.reverse):
+                self.buffer.add_demo(**demo_prefix_relabel(d, task.state_dim, task.act_dim, task.is_success))
         self.value = (AuxCritic(task.obs_dim, task.act_dim, seeds, cfg.sac(), device, Stream.VALUE_CRITIC)
                       if cfg.value_critic == "separate" else None)
         self.sac_value_gens = member_generators(seeds, self.device, Stream.SAC_VALUE)

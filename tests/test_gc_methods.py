@@ -29,13 +29,14 @@ from algorithms.vaprl import (
     VaPRLRISC,
     VaPRLRISCConfig,
     choose_subgoal,
+    demo_prefix_relabel,
     demo_time_index,
     final_state_relabel,
     lagrangian_subgoal,
     subgoal_candidates,
     value_ceiling,
 )
-from harness.data import load_demos
+from harness.data import Demos, load_demos
 from harness.envs import get_spec
 
 from .conftest import requires_data
@@ -240,6 +241,37 @@ def test_final_state_relabel_cuts_at_first_success():
     np.testing.assert_array_equal(copy["observations"][:, 6:], np.broadcast_to(s2[-1], (4, 6)))
     np.testing.assert_array_equal(copy["next_observations"][:, :6], s2[:4])
     np.testing.assert_array_equal(copy["actions"], a[:4])
+
+
+def test_demo_prefix_relabel_is_the_original_data_multiplier():
+    """relabel_demos (the original relabel_offline_data): per demo of length L, L copies; copy j has goal s_j (the
+    state the demo reaches after j transitions), the demo's own first transitions, and ends terminal with reward 1 at
+    its first success for that goal."""
+    spec = get_spec(ENV)
+    x = np.array([0.0, 1.0, 1.1, 2.0, 5.0, 5.05], np.float32)  # gripper x of s_0..s_3 (demo A), s_0..s_1 (demo B)
+    obs = np.zeros((4, 12), np.float32)
+    obs[:, 0] = [x[0], x[1], x[2], x[4]]
+    nxt = np.zeros((4, 12), np.float32)
+    nxt[:, 0] = [x[1], x[2], x[3], x[5]]
+    act = np.arange(12, dtype=np.float32).reshape(4, 3)
+    demos = Demos(env=ENV, direction="forward", observations=obs, actions=act, rewards=np.zeros(4, np.float32), next_observations=nxt,
+                  terminals=np.array([False, False, True, True]))
+    c = demo_prefix_relabel(demos, 6, 3, spec.is_success)
+    # demo A (s: 0, 1, 1.1, 2): goal 1 -> [0->1]; goal 1.1 -> [0->1] already within 0.2; goal 2 -> all three.
+    # demo B (s: 5, 5.05): goal 5.05 -> [5->5.05]
+    np.testing.assert_allclose(c["observations"][:, 6], [1.0, 1.1, 2.0, 2.0, 2.0, 5.05])
+    np.testing.assert_allclose(c["observations"][:, 0], [0.0, 0.0, 0.0, 1.0, 1.1, 5.0])
+    np.testing.assert_allclose(c["next_observations"][:, 0], [1.0, 1.0, 1.0, 1.1, 2.0, 5.05])
+    np.testing.assert_array_equal(c["terminals"], [True, True, False, False, True, True])
+    np.testing.assert_array_equal(c["rewards"], c["terminals"].astype(np.float32))
+    np.testing.assert_array_equal(c["actions"], act[[0, 0, 0, 1, 2, 3]])
+    # in the agent: the copies join the demos in every member's buffer, before any step
+    plain = _make(VaPRL, VaPRLConfig, seeds=(0, 1))
+    relabelled = _make(VaPRL, VaPRLConfig, seeds=(0, 1), relabel_demos=True, buffer_capacity=400_000)
+    d = _demos()
+    extra = sum(len(demo_prefix_relabel(x, 6, 3, spec.is_success)["terminals"]) for x in (d.forward, d.reverse))
+    assert extra > 100_000  # ~L^2 / 2 per demo: 134k transitions for tabletop's 24 demos
+    np.testing.assert_array_equal(relabelled.buffer.num_transitions, plain.buffer.num_transitions + extra)
 
 
 def test_value_threshold_is_in_the_critics_units():
