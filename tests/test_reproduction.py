@@ -67,7 +67,7 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
-    assert n == (10 if suite == "reproduction" else 8)
+    assert n == (10 if suite == "reproduction" else 9)
 
 
 @requires_data
@@ -87,6 +87,8 @@ def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
     by = {g.algo: g for g in ab}
     assert by["vaprl_replay_candidates"].algo_class == "vaprl"
     assert by["vaprl_replay_candidates"].config["candidates"] == "replay"
+    assert by["vaprl_demo_relabel"].config["relabel_demos"] is True
+    assert by["vaprl_replay_candidates"].config["relabel_demos"] is False
     assert by["vaprl_risc_no_tab"].algo_class == "vaprl_risc"
     assert by["vaprl_risc_no_tab"].config["bootstrap_on_truncation"] is False
     assert by["vaprl_risc"].config["bootstrap_on_truncation"] is True
@@ -171,7 +173,7 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
-    assert not at.exception and len(at.get("vega_lite_chart")) == 8
+    assert not at.exception and len(at.get("vega_lite_chart")) == 9
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
