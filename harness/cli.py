@@ -8,6 +8,7 @@
     harness data scripted [env=NAME] [out=DIR]    scripted demonstrations (demo_source=scripted)
     harness bench env [envs=a,b] [steps=N]
     harness bench train algo=medal env=sawyer_door members=E
+    harness bench matmul [members=E] [repeats=5]   member-batched products of the SAC update
     harness bench app [runs=100] [evals=300] [repeats=3] [results=DIR]   dashboard page-load time
     harness report [suite=NAME] [results=DIR] [out=DIR] [doc=FILE]
     harness ship suite=NAME results=DIR [to=results]   copy a suite's evaluation tables (no checkpoints)
@@ -98,11 +99,18 @@ def cmd_bench(args) -> int:
         from harness.bench_train import bench_train_cli
 
         return bench_train_cli(parse_overrides(args.overrides))
+    if args.what == "matmul":
+        from harness.bench import bench_matmul
+
+        ov = parse_overrides(args.overrides, {"members", "repeats"})
+        bench_matmul(optional_integer("members", ov.get("members"), 2, 1),
+                     optional_integer("repeats", ov.get("repeats"), 5, 1))
+        return 0
     if args.what == "app":
         from harness.bench_app import bench_app_cli
 
         return bench_app_cli(parse_overrides(args.overrides, {"runs", "evals", "repeats", "results"}))
-    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, app")
+    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, matmul, app")
 
 
 def cmd_run(args) -> int:
@@ -206,8 +214,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("overrides", nargs="*")
     d.set_defaults(fn=cmd_data)
 
-    b = sub.add_parser("bench", help="benchmarks: env and training throughput, dashboard page-load time")
-    b.add_argument("what", choices=["env", "train", "app"])
+    b = sub.add_parser("bench", help="benchmarks: env and training throughput, network products, dashboard page-load "
+                                      "time")
+    b.add_argument("what", choices=["env", "train", "matmul", "app"])
     b.add_argument("overrides", nargs="*")
     b.set_defaults(fn=cmd_bench)
     return p

@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from algorithms.core import SAC, Discriminator, MemberAdam, MemberMLP, SACConfig, discriminator_reward
-from algorithms.core.nets import member_generators
+from algorithms.core.nets import NARROW, member_generators, member_matmul
 
 SKIP = (None, 3, 5)  # member 0 updates always, member 1 skips every 3rd update, member 2 every 5th
 
@@ -79,6 +79,29 @@ def test_member_init_equals_single_seed_init():
     for net in ("actor", "critic", "critic_target"):
         for a, b in zip(getattr(multi, net).parameters(), getattr(single, net).parameters()):
             assert torch.equal(a.view(3, -1)[1], b.view(-1))
+
+
+@pytest.mark.parametrize("n, k, m", [
+    (256, 256, 1),  # a critic head over a batch
+    (256, 256, 6),  # an actor's output (2A)
+    (1, 256, 6),  # the same when acting (one row per member)
+    (256, 256, NARROW + 1),  # just wide enough for the plain product
+    (256, 1, 256),  # an outer product: d (B, 1) @ W^T (1, hidden)
+    (256, 256, 256),  # a hidden layer
+])
+def test_member_matmul_is_the_batched_product(n, k, m):
+    """member_matmul equals torch.bmm / baddbmm (float rounding) for every shape the networks use, and where it takes
+    its own route (one column, one row per member, an outer product) each member's result is bit for bit what an E = 1
+    call gives, so a member never depends on which others share its process."""
+    g = torch.Generator().manual_seed(n + k + m)
+    a, b, bias = (torch.randn(s, generator=g) for s in ((3, n, k), (3, k, m), (3, 1, m)))
+    torch.testing.assert_close(member_matmul(a, b), torch.bmm(a, b), rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(member_matmul(a, b, bias), torch.baddbmm(bias, a, b), rtol=1e-5, atol=1e-4)
+    torch.testing.assert_close(member_matmul(a.transpose(1, 2).contiguous().transpose(1, 2), b), torch.bmm(a, b),
+                               rtol=1e-5, atol=1e-4)  # strided input, as x^T in a weight gradient
+    if m == 1 or n == 1 or k == 1:
+        single = torch.cat([member_matmul(a[i : i + 1], b[i : i + 1], bias[i : i + 1]) for i in range(3)])
+        assert torch.equal(member_matmul(a, b, bias), single)
 
 
 def test_xavier_uniform_bounds_and_zero_bias():

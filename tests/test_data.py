@@ -143,6 +143,8 @@ def test_scripted_demos_cli(tmp_path):
         (["data", "scripted", "seed=-1"], "seed must be >= 0"),
         (["bench", "env", "steps=abc"], "steps must be an integer"),
         (["bench", "env", "envs=foo"], "unknown env 'foo'"),
+        (["bench", "matmul", "members=0"], "members must be >= 1"),
+        (["bench", "matmul", "size=3"], "unknown key 'size'"),
     ],
 )
 def test_bad_input_one_line_exit_2(argv, needle, capsys, tmp_path, monkeypatch):

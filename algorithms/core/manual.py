@@ -13,7 +13,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from .nets import MemberMLP, MemberTrunk
+from .nets import MemberMLP, MemberTrunk, member_matmul
 
 
 def _t(x: Tensor) -> Tensor:
@@ -32,7 +32,7 @@ def _relu_backward(grad: Tensor, out: Tensor) -> Tensor:
 
 def trunk_forward(trunk: MemberTrunk, x: Tensor) -> tuple[Tensor, tuple]:
     lin, norm = trunk.linear, trunk.norm
-    z = torch.baddbmm(lin.bias, x, lin.weight)
+    z = member_matmul(x, lin.weight, lin.bias)
     normed, mean, rstd = torch.native_layer_norm(z, (norm.dim,), None, None, norm.eps)
     h = torch.tanh(torch.addcmul(norm.bias, normed, norm.weight))
     return h, (x, z, normed, mean, rstd, h)
@@ -46,7 +46,7 @@ def trunk_backward(trunk: MemberTrunk, cache: tuple, dh: Tensor) -> list[Tensor]
     d_beta = dy.sum(1, keepdim=True)
     dz = torch.ops.aten.native_layer_norm_backward(
         dy * trunk.norm.weight, z, (trunk.norm.dim,), mean, rstd, None, None, [True, False, False])[0]
-    return [torch.bmm(_t(x), dz), dz.sum(1, keepdim=True), d_gamma, d_beta]
+    return [member_matmul(_t(x), dz), dz.sum(1, keepdim=True), d_gamma, d_beta]
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -61,7 +61,7 @@ def mlp_forward(mlp: MemberMLP, x: Tensor) -> tuple[Tensor, list[Tensor]]:
     inputs = []
     for i, layer in enumerate(mlp.layers):
         inputs.append(x)
-        x = torch.baddbmm(layer.bias, x, layer.weight)
+        x = member_matmul(x, layer.weight, layer.bias)
         if i < len(mlp.layers) - 1:
             x = torch.relu_(x)
     return x, inputs
@@ -79,11 +79,11 @@ def mlp_backward(mlp: MemberMLP, inputs: list[Tensor], dout: Tensor, weights: bo
     for i in range(len(mlp.layers) - 1, -1, -1):
         layer, x = mlp.layers[i], inputs[i]
         if weights:
-            grads[:0] = [torch.bmm(_t(x), d), d.sum(1, keepdim=True)]
+            grads[:0] = [member_matmul(_t(x), d), d.sum(1, keepdim=True)]
         if i > 0:
-            d = _relu_backward(torch.bmm(d, _t(layer.weight)), x)
+            d = _relu_backward(member_matmul(d, _t(layer.weight)), x)
         elif input_cols is not None:
-            return grads, torch.bmm(d, _t(layer.weight[:, input_cols]))
+            return grads, member_matmul(d, _t(layer.weight[:, input_cols]))
     return grads, None
 
 
