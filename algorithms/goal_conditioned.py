@@ -147,6 +147,7 @@ class GoalConditioned(Algorithm):
         self.warmup_rngs = member_rngs(seeds, Stream.GC_WARMUP)
         self.direction = np.zeros(E, dtype=np.int64)
         self.phase_steps = np.zeros(E, dtype=np.int64)  # actions taken in the current phase
+        self.phase_hit = np.zeros(E, dtype=bool)  # the current phase has reached its goal at some step
         self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
         self.step = 0
         self._obs = np.zeros((E, O), dtype=np.float32)
@@ -187,6 +188,7 @@ class GoalConditioned(Algorithm):
         """Start (or hard reset): a forward phase (14.1)."""
         self.direction[mask] = FORWARD
         self.phase_steps[mask] = 0
+        self.phase_hit[mask] = False
         self._begin_phase(obs, mask)
 
     def _begin_phase(self, obs: np.ndarray, mask: np.ndarray) -> None:
@@ -213,6 +215,7 @@ class GoalConditioned(Algorithm):
         success = np.asarray(self.task.is_success(no), dtype=bool)
         terminal = success if self.success_ends_phase() else np.zeros_like(success)
         self.phase_steps += 1
+        self.phase_hit |= success
         limit = self.phase_steps >= self.cfg.phase_step_limit
         truncated = ~terminal & (limit | self._switch | hard_reset)
         end = terminal | truncated
@@ -230,6 +233,9 @@ class GoalConditioned(Algorithm):
         self.log.add_host("phase/", {"forward_end_success": success, "forward_early_switch": self._switch & ~success},
                           fwd & end)
         self.log.add_host("phase/", {"backward_end_success": success}, ~fwd & end)
+        self.log.add_host("phase/", {"forward_any_success": self.phase_hit}, fwd & end)
+        self.log.add_host("phase/", {"backward_any_success": self.phase_hit}, ~fwd & end)
+        self.phase_hit[end] = False
         flip = end & ~hard_reset  # a hard reset starts a forward phase in on_reset
         self.direction[flip] = 1 - self.direction[flip]
         self.phase_steps[end] = 0
@@ -248,7 +254,7 @@ class GoalConditioned(Algorithm):
             "sac": self.sac.state_dict(), "buffer": self.buffer.state_dict(),
             "goal_rngs": rng_states(self.goal_rngs), "warmup_rngs": rng_states(self.warmup_rngs),
             "direction": self.direction.copy(), "phase_steps": self.phase_steps.copy(), "goal": self.goal.copy(),
-            "step": self.step,
+            "step": self.step, "phase_hit": self.phase_hit.copy(),
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -260,8 +266,10 @@ class GoalConditioned(Algorithm):
         self.phase_steps[:] = state["phase_steps"]
         self.goal[:] = state["goal"]
         self.step = state["step"]
+        self.phase_hit[:] = state.get("phase_hit", False)  # checkpoints before the any-success diagnostic: none yet
 
     def metrics(self) -> dict[str, np.ndarray]:
         """sac/*: the agent's update diagnostics; phase/*: share of steps in backward phases, and of forward
-        (backward) phases that ended in success, or (RISC) by an early switch."""
+        (backward) phases that ended in success, that reached their goal at any step (the same when success ends the
+        phase), or (RISC) ended by an early switch."""
         return self.log.pop()

@@ -21,7 +21,8 @@ docs/reproduction.md): phase length 200 / 300 / 200 (RISC's values; the code's f
 ``kappa * V_max`` with kappa 0.5 and V_max the most one phase can earn in the critic's units (:func:`value_ceiling`:
 866 for a 200-step phase at reward scale 10 and discount 0.99 -- a unit of 10, RISC's, would put every demo state
 above the threshold, lambda would stay 0 and the subgoal would always be rho0: no curriculum), the multiplier's learning rate 3e-4 (flag default) and no upper bound (flag
-default), one policy action per value estimate (flag default ``num_action_samples`` 1).
+default), one policy action per value estimate (flag default ``num_action_samples`` 1), no relabelling of the demos
+(``relabel_demos`` off: the flag default of ``relabel_offline_data``; the ablation's ``vaprl_demo_relabel`` turns it on).
 
 Every config switch below selects one behaviour of one of the two codes, so an ablation restores one of them at a time.
 

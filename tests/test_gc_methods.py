@@ -340,6 +340,33 @@ def test_vaprl_uses_the_original_codes_behaviour():
     np.testing.assert_array_equal(g, v.candidates[np.argmin(v.l2_distance)])
 
 
+def test_phase_any_success_diagnostic():
+    """phase/*_any_success: the share of phases that reached their goal at some step; with vaprl's phases (success does
+    not end them) a phase that touches its goal and leaves counts there but not in *_end_success."""
+    v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), seed_steps=10**6, phase_step_limit=10)
+
+    class Scripted:  # the task, but the per-step success check (both members' rows) hits member 0 at steps 3 and 15
+        def __init__(self, task):
+            self.task, self.calls = task, 0
+
+        def __getattr__(self, name):
+            return getattr(self.task, name)
+
+        def is_success(self, obs):
+            if len(obs) != 2:  # relabelling checks whole phases
+                return self.task.is_success(obs)
+            self.calls += 1
+            return np.array([self.calls - 1 in (3, 15), False])  # forward phase 0-9, backward phase 10-19
+
+    v.task = Scripted(v.task)
+    _run(v, ENV, (0, 1), 40)
+    m = v.metrics()
+    np.testing.assert_allclose(m["phase/forward_any_success"], [0.5, 0.0])  # 2 forward phases each, one hit
+    np.testing.assert_allclose(m["phase/backward_any_success"], [0.5, 0.0])
+    np.testing.assert_allclose(m["phase/forward_end_success"], [0.0, 0.0])
+    assert not v.phase_hit.any()
+
+
 def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
     """candidates=replay (the original code's num_reset_candidates): each choice draws fresh states from the member's
     own replay buffer; the Lagrangian rule then runs on their L2 distance to mean(rho0)."""
