@@ -355,11 +355,16 @@ class VaPRL(GoalConditioned):
         goal = np.where(future[:, None], future_goal, demo_goal)
         next_obs = np.concatenate([s2[src], goal], axis=1).astype(np.float32)
         success = np.asarray(self.task.is_success(next_obs), dtype=bool)
+        # a copy is truncated only where the phase itself ended (its limit, a switch or a hard reset: not bootstrapped
+        # without timeout-aware bootstrapping); a copy of any earlier transition bootstraps like the original
+        truncated = ~success & (src == T - 1)
         return {"obs": np.concatenate([s[src], goal], axis=1).astype(np.float32), "action": a[src],
-                "next_obs": next_obs, "reward": success.astype(np.float32), "terminal": success}
+                "next_obs": next_obs, "reward": success.astype(np.float32), "terminal": success,
+                "truncated": truncated}
 
     def _insert_relabelled(self, i: int, phase: np.ndarray) -> None:
-        """Each relabelled transition as its own segment: FIRST [s, g] then the step to [s', g]."""
+        """Each relabelled transition as its own segment: FIRST [s, g] then the step to [s', g], terminal on success,
+        truncated only for the phase's last transition (:meth:`relabelled`)."""
         r = self.relabelled(i, phase)
         n = len(r["reward"])
 
@@ -373,7 +378,7 @@ class VaPRL(GoalConditioned):
             "action": interleave(np.zeros_like(r["action"]), r["action"]),
             "reward": interleave(zeros, r["reward"]),
             "terminal": interleave(zeros.astype(bool), r["terminal"]),
-            "truncated": interleave(zeros.astype(bool), ~r["terminal"]),
+            "truncated": interleave(zeros.astype(bool), r["truncated"]),
         }
         self.buffer._append_steps(np.array([i]), steps, np.tile([True, False], n))
 

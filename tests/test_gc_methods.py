@@ -203,8 +203,12 @@ def test_vaprl_risc_subgoal_from_value_table(monkeypatch):
     assert vals.shape == (1, N) and np.isfinite(vals).all()
 
 
-def test_vaprl_risc_relabelled_rewards_match_env_predicate():
-    v = _make(VaPRLRISC, VaPRLRISCConfig, seed_steps=10**6, phase_step_limit=40)
+@pytest.mark.parametrize("tab", [True, False])
+def test_vaprl_risc_relabelled_rewards_match_env_predicate(tab):
+    """4 copies per transition: reward = terminal = the env predicate for the new goal; truncated only where the
+    phase ended, so without timeout-aware bootstrapping (vaprl_risc_no_tab) a copy of a mid-phase transition still
+    bootstraps and only the phase's last one stops."""
+    v = _make(VaPRLRISC, VaPRLRISCConfig, seed_steps=10**6, phase_step_limit=40, bootstrap_on_truncation=tab)
     spec = v.task
     n0 = v.buffer.size[0]
     _run(v, ENV, (0,), 40)  # exactly one phase
@@ -218,7 +222,10 @@ def test_vaprl_risc_relabelled_rewards_match_env_predicate():
     ok = spec.is_success(next_obs)
     np.testing.assert_array_equal(r["reward"][0, k][1::2].numpy(), ok.astype(np.float32))
     np.testing.assert_array_equal(r["terminal"][0, k][1::2].numpy(), ok)
-    np.testing.assert_array_equal(r["truncated"][0, k][1::2].numpy(), ~ok)
+    last = np.repeat(np.arange(40), 4) == 39  # copies of the phase's last transition (its time limit)
+    np.testing.assert_array_equal(r["truncated"][0, k][1::2].numpy(), ~ok & last)
+    m = v.sac.bootstrap_mask(r["terminal"][:1, k][:, 1::2], r["truncated"][:1, k][:, 1::2])[0].numpy()
+    np.testing.assert_array_equal(m, ~ok if tab else ~ok & ~last)
     np.testing.assert_array_equal(obs[:, 6:], next_obs[:, 6:])  # same goal on both sides
     assert ok.any()  # future goals include the own next state
     demo_goal = (next_obs[:, None, 6:] == v.candidates[None]).all(-1).any(-1)
