@@ -38,8 +38,8 @@ python3 -c "import torch; print('torch', torch.__version__, 'cuda', torch.versio
 
 stamp "CUDA tests, the compiled static update on CUDA (CUDA graphs), the one-read-per-step test"
 python3 -m pytest -q -p no:cacheprovider -m "slow or not slow" tests/test_cuda.py tests/test_static_update.py \
-  tests/test_device_step.py 2>&1 \
-  --deselect "tests/test_static_update.py::test_compiled_static_update_equals_the_uncompiled_one[cpu]" | tail -15
+  tests/test_device_step.py \
+  --deselect "tests/test_static_update.py::test_compiled_static_update_equals_the_uncompiled_one[cpu]" 2>&1 | tail -15
 
 stamp "bench train: MEDAL, device=$device"
 echo "env,members,env_workers,update,per_member,aggregate,split" > "$out/bench.csv"
