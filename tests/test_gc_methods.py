@@ -2,6 +2,7 @@
 curriculum, relabelled rewards, member independence."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -455,3 +456,30 @@ def test_aux_critic_update_matches_autograd(squash):
     for a, b in zip(list(ours.net.parameters()) + list(ours.target.parameters()),
                     list(ref.net.parameters()) + list(ref.target.parameters())):
         torch.testing.assert_close(a, b, atol=2e-6, rtol=1e-5)
+
+
+def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
+    """scripts/vaprl_curriculum_probe.py loads a real run's checkpoint and applies the Lagrangian rule: at lambda 0
+    every pick is the candidate nearest rho0 (L2 0.0), one line per (task goal, seed) and rule; a directory without
+    checkpoints is one error line and exit 2."""
+    import importlib.util
+
+    from harness.cli import main as harness_main
+
+    assert harness_main(["run", "algo=vaprl", f"env={ENV}", "steps=100", "eval_every=100", "eval_episodes=1",
+                         "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
+                         "checkpoint_every=100", f"results={tmp_path}"]) == 0
+    path = Path(__file__).parents[1] / "scripts" / "vaprl_curriculum_probe.py"
+    spec = importlib.util.spec_from_file_location("vaprl_curriculum_probe", path)
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    capsys.readouterr()
+    assert probe.main([str(tmp_path / "adhoc" / ENV / "vaprl"), "lambdas=0,1e9"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("step 100;")
+    goals = len(get_spec(ENV).goal_states)
+    assert sum(line.startswith("g*") for line in lines) == goals * 2
+    rules = [line.split() for line in lines if line.startswith("    ")]
+    assert len(rules) == goals * 2 * 2 and all("0:" in r and r[r.index("0:") + 1].startswith("0.0/") for r in rules)
+    assert probe.main([str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: give a VaPRL cell directory")
