@@ -114,6 +114,10 @@ class MEDAL(ForwardBackward):
 
     def on_backward_states(self, obs, mask):
         self.neg_buf.add(obs, mask=mask)  # every backward-phase state is a negative
+        # diagnostic: C of the states the backward controller visits now (the discriminator's batches mix the whole
+        # history); the state-distribution matching shows as this rising toward c_positives
+        c = self.disc.prob(torch.as_tensor(obs, dtype=torch.float32, device=self.device)[:, None])[:, 0]
+        self.log.add("discriminator/", {"c_visited": c}, mask)
 
     def learn_extra(self, bwd_batch, bwd_mask):
         """One discriminator step every ``disc_every`` global steps, whichever controller acts (9.3)."""

@@ -149,3 +149,30 @@ def test_members_are_independent_across_switches():
                 nb, n1 = getattr(getattr(batched, name), net), getattr(getattr(single, name), net)
                 for pb, p1 in zip(nb.parameters(), n1.parameters()):  # leading dims are member-major
                     assert (pb.detach().reshape(3, -1)[i] - p1.detach().reshape(-1)).abs().max().item() < 1e-3
+
+
+def test_c_visited_is_the_discriminator_on_the_backward_states():
+    """discriminator/c_visited: mean C over the states the backward controller adds to the negatives since the last
+    metrics() call; NaN for a member with none (here: the period before any backward step)."""
+    spec = get_spec("tabletop_manipulation")
+    m = _medal(switch_every=5, seed_steps=10**9)
+    o = _obs(spec, np.array([1.0, 1.0, 2.5, 0.0, -1, -1]), spec.goal_states[0])
+    m.on_reset(o, np.ones(1, bool))
+    for _ in range(4):  # forward steps only
+        m.act(o)
+        m.observe(o, np.zeros(1, bool))
+    assert np.isnan(m.metrics().get("discriminator/c_visited", np.array([np.nan]))[0])
+    m.act(o)
+    m.observe(o, np.zeros(1, bool))  # the switch: the backward FIRST state [s, new goal] is a negative
+    visited = [with_goal_row(o, m.goal[0], spec.state_dim)]
+    s2 = _obs(spec, np.array([-1.0, 0.5, 0.0, 1.0, 0, 0]), spec.goal_states[2])
+    for _ in range(3):
+        m.act(s2)
+        m.observe(s2, np.zeros(1, bool))
+        visited.append(with_goal_row(s2, m.goal[0], spec.state_dim))
+    c = m.disc.prob(torch.as_tensor(np.stack(visited))[None])[0].mean()
+    np.testing.assert_allclose(m.metrics()["discriminator/c_visited"][0], float(c), rtol=1e-6)
+
+
+def with_goal_row(obs, goal, sd):
+    return np.concatenate([obs[0, :sd], goal]).astype(np.float32)
