@@ -70,8 +70,12 @@ def main(argv: list[str]) -> int:
         print(f"error: give a VaPRL cell directory with checkpoints/seeds=*/checkpoint.pt (got {run_dir}); usage: "
               + __doc__.strip().splitlines()[2].strip(), file=sys.stderr)
         return 2
-    opts = dict(a.split("=", 1) for a in argv[1:])
-    lambdas = [float(x) for x in opts.get("lambdas", "0.5,1,2,5,20").split(",")]
+    opts = dict(a.split("=", 1) for a in argv[1:] if "=" in a)
+    try:
+        lambdas = [float(x) for x in opts.get("lambdas", "0.5,1,2,5,20").split(",")]
+    except ValueError:
+        print(f"error: lambdas must be comma-separated numbers (got {opts['lambdas']!r})", file=sys.stderr)
+        return 2
     torch.set_num_threads(1)
     for algo, seeds, step in groups(run_dir):
         probe(algo, seeds, step, lambdas)

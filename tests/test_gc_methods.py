@@ -483,3 +483,5 @@ def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
     assert len(rules) == goals * 2 * 2 and all("0:" in r and r[r.index("0:") + 1].startswith("0.0/") for r in rules)
     assert probe.main([str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: give a VaPRL cell directory")
+    assert probe.main([str(tmp_path / "adhoc" / ENV / "vaprl"), "lambdas=1,x"]) == 2
+    assert capsys.readouterr().err.startswith("error: lambdas must be comma-separated numbers")
