@@ -103,6 +103,7 @@ class MEDAL(ForwardBackward):
         self.pos_buf.extend(pos)
         self.neg_buf = StateBuffer(E, cfg.buffer_capacity, O, device, seeds, stream=Stream.AGENT_STATES,
                                    name="discriminator negatives")
+        self._visited_mark = np.zeros(E, dtype=np.int64)  # negatives already counted in c_visited (a diagnostic)
 
     def backward_demos(self) -> list[dict[str, np.ndarray]]:
         """Forward demos + backward demos relabelled with every task goal (9.5)."""
@@ -114,10 +115,6 @@ class MEDAL(ForwardBackward):
 
     def on_backward_states(self, obs, mask):
         self.neg_buf.add(obs, mask=mask)  # every backward-phase state is a negative
-        # diagnostic: C of the states the backward controller visits now (the discriminator's batches mix the whole
-        # history); the state-distribution matching shows as this rising toward c_positives
-        c = self.disc.prob(torch.as_tensor(obs, dtype=torch.float32, device=self.device)[:, None])[:, 0]
-        self.log.add("discriminator/", {"c_visited": c}, mask)
 
     def learn_extra(self, bwd_batch, bwd_mask):
         """One discriminator step every ``disc_every`` global steps, whichever controller acts (9.3)."""
@@ -137,3 +134,17 @@ class MEDAL(ForwardBackward):
         super().load_state_dict(state)
         for name in ("disc", "pos_buf", "neg_buf"):
             getattr(self, name).load_state_dict(state[name])
+        self._visited_mark = self.neg_buf.size.copy()
+
+    def metrics(self) -> dict[str, np.ndarray]:
+        """As the forward-backward base, plus discriminator/c_visited: mean C, by the discriminator now, of the states
+        the backward controller visited since the last call (the negatives added since then; NaN where none). The
+        discriminator's own batches mix the whole history; the state-distribution matching shows as this number rising
+        toward c_positives. Computed here, once per call, not on the per-step path."""
+        out, size = super().metrics(), self.neg_buf.size
+        c = np.full(self.E, np.nan)
+        for i in np.flatnonzero(size > self._visited_mark):
+            new = self.neg_buf.data["x"][i, self._visited_mark[i] : size[i]]  # member i's new negatives
+            c[i] = self.disc.prob(new.expand(self.E, -1, -1))[i].mean().item()  # scored by member i's discriminator
+        self._visited_mark = size.copy()
+        return {**out, "discriminator/c_visited": c}
