@@ -67,7 +67,8 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
-    assert n == 10  # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 10
+    # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 11 cells of one window each
+    assert n == {"reproduction": 10, "vaprl_ablation": 11}[suite]
 
 
 @requires_data
@@ -88,6 +89,7 @@ def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
     assert by["vaprl_replay_candidates"].algo_class == "vaprl"
     assert by["vaprl_replay_candidates"].config["candidates"] == "replay"
     assert by["vaprl_demo_relabel"].config["relabel_demos"] is True
+    assert by["vaprl_future_demo_relabel"].config["relabel"] == "future_demo"
     assert by["vaprl_replay_candidates"].config["relabel_demos"] is False
     fast = by["vaprl_demo_relabel_fast_lambda"].config
     assert fast["relabel_demos"] is True and fast["lagrange_lr"] == 0.003
@@ -176,7 +178,7 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
-    assert not at.exception and len(at.get("vega_lite_chart")) == 10  # the ablation: 10 cells
+    assert not at.exception and len(at.get("vega_lite_chart")) == 11  # the ablation: 11 cells
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
