@@ -83,11 +83,19 @@ PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pya
 
 
 def parse_seeds(v: Any) -> list[int]:
-    """``seeds=``: a count n (seeds 0..n-1) or a comma list (or YAML list) of distinct seeds."""
-    if isinstance(v, (list, tuple)) or (isinstance(v, str) and "," in v):
-        seeds = [_int("seeds", x, 0, MAX_SEED) for x in (v if isinstance(v, (list, tuple)) else v.split(","))]
+    """``seeds=``: a count n (seeds 0..n-1) or a list of distinct seeds: a YAML list, or on the command line
+    ``0,3,7``, ``[0,3,7]``, and for one seed ``7,`` or ``[7]``."""
+    raw = v
+    if isinstance(v, str) and ("," in v or v.startswith("[")):
+        v = v.removeprefix("[").removesuffix("]").split(",")
+        if not v[-1].strip():  # "7," is the list [7], "[]" the empty list
+            v = v[:-1]
+    if isinstance(v, (list, tuple)):
+        if not v:
+            raise ConfigError("seeds is an empty list")
+        seeds = [_int("seeds", x, 0, MAX_SEED) for x in v]
         if len(set(seeds)) != len(seeds):
-            raise ConfigError(f"seeds must be distinct, got {v!r}")
+            raise ConfigError(f"seeds must be distinct, got {raw!r}")
         if len(seeds) > MAX_SEEDS:
             raise ConfigError(f"at most {MAX_SEEDS} seeds per run command, got {len(seeds)}")
         return seeds

@@ -145,9 +145,21 @@ def test_git_sha_marks_uncommitted_changes(tmp_path):
     assert git_sha(tmp_path) == head + "-dirty"
 
 
+def test_seed_lists():
+    """A count, a comma list, and one explicit seed (``7,`` or ``[7]``: ``seeds=7`` is the count 0..6)."""
+    from harness.runner import parse_seeds
+
+    assert parse_seeds("3") == [0, 1, 2] and parse_seeds(3) == [0, 1, 2]
+    assert parse_seeds("0,3,7") == parse_seeds("[0,3,7]") == parse_seeds([0, 3, 7]) == [0, 3, 7]
+    assert parse_seeds("7,") == parse_seeds("[7]") == [7]
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [
+        (["algo=medal", "env=sawyer_door", "seeds=[]"], "seeds is an empty list"),
+        (["algo=medal", "env=sawyer_door", "seeds=2,2"], "seeds must be distinct"),
+        (["algo=medal", "env=sawyer_door", "seeds=[x]"], "seeds must be an integer"),
         (["colour=red", "algo=medal", "env=sawyer_door"], "unknown key 'colour'"),
         (["algo=nope", "env=sawyer_door"], "unknown algorithm"),
         (["algo=medal", "env=nope"], "unknown env 'nope'"),

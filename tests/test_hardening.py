@@ -76,6 +76,7 @@ BAD_SETTINGS = sorted({(name, key, v) for name, cls in ALGORITHMS.items() for ke
 BAD_RUN_WORDS = [
     ["steps=0"], ["steps=-5"], ["steps=1e20"], ["steps=" + "9" * 32], ["steps=abc"], ["steps=1.5"],
     ["seeds=0"], ["seeds=100000000"], ["seeds=1,1"], ["seeds=a,b"], ["seeds=1,99999999999"],
+    ["seeds=[]"], ["seeds=,"], ["seeds=[1,1]"], ["seeds=3,,"],
     ["members=0"], ["members=5000"], ["eval_every=0"], ["eval_episodes=0"], ["eval_episodes=1e9"],
     ["checkpoint_every=300", "eval_every=200"], ["workers=0"], ["workers=1e6"], ["device=tpu9"],
     ["backend=mpi"], ["ray_address=auto"], ["colour=red"], ["steps=100", "steps=200"], ["naive.lr=0.1"],
