@@ -52,7 +52,7 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "algos": ("-", "same as algo"),
     "env": ("-", f"env(s), comma-separated: {', '.join(ENVS)}"),
     "envs": ("-", "same as env"),
-    "seeds": ("1", "a count (seeds 0..n-1) or a comma list of distinct seeds"),
+    "seeds": ("1", "a count (seeds 0..n-1) or a comma list of distinct seeds (one seed: 7, or [7])"),
     "steps": ("/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env", "training steps per run"),
     "eval_every": ("10000", "steps between deployed-policy evaluations"),
     "eval_episodes": ("10", "episodes per evaluation"),
