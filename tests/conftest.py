@@ -1,10 +1,17 @@
+import ctypes.util
 import os
 
 import numpy as np
 import pytest
 import torch
 
-os.environ.setdefault("MUJOCO_GL", "osmesa")
+# headless rendering through OSMesa where Debian's libosmesa6 is installed. Without it, MUJOCO_GL=osmesa would make
+# `import mujoco` fail for every test and GLFW with no display aborts the process, so GL is switched off and the
+# rendering tests skip (they turn "no backend" into a skip)
+if ctypes.util.find_library("OSMesa"):
+    os.environ.setdefault("MUJOCO_GL", "osmesa")
+elif not os.environ.get("DISPLAY"):
+    os.environ.setdefault("MUJOCO_GL", "disable")
 
 
 def _has_data() -> bool:
