@@ -109,8 +109,9 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
     """The check's outcome from our curves (seed, step, value): ``status`` pass / fail / running, our seed-mean and
     per-seed window means, the accepted band, and how far the slowest seed got."""
     need = set(range(check.lo + eval_every, check.hi + 1, eval_every))
-    reached = min((int(curves.loc[curves["seed"] == s, "step"].max()) if (curves["seed"] == s).any() else 0)
-                  for s in cell.seeds)
+    by_seed = [int(curves.loc[curves["seed"] == s, "step"].max()) if (curves["seed"] == s).any() else 0
+               for s in cell.seeds]
+    reached = min(by_seed)
     per_seed = window_means(curves, check.lo, check.hi)
     complete = all(need <= set(curves.loc[curves["seed"] == s, "step"].astype(int)) for s in cell.seeds)
     lower, upper = check.min - widen, check.max + widen
@@ -120,12 +121,18 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
     else:
         status = "pass" if lower <= mean <= upper else "fail"
     return {"status": status, "ours": mean, "ours_per_seed": [float(per_seed.get(s, np.nan)) for s in cell.seeds],
-            "lower": lower, "upper": upper, "reached": reached}
+            "lower": lower, "upper": upper, "reached": reached, "furthest": max(by_seed),
+            "started": sum(r > 0 for r in by_seed), "seeds": len(by_seed)}
 
 
 def verdict_text(v: dict, check: Check, steps: int) -> str:
     if v["status"] == "running":
-        return f"running: reached {v['reached']:,} of {steps:,} steps" if v["reached"] else "not started"
+        if v["reached"]:
+            return f"running: reached {v['reached']:,} of {steps:,} steps"
+        if v.get("started"):
+            return (f"running: {v['started']} of {v['seeds']} seeds started, the furthest at {v['furthest']:,} of "
+                    f"{steps:,} steps")
+        return "not started"
     side = "" if v["status"] == "pass" else (" (too weak)" if v["ours"] < v["lower"] else " (too strong)")
     return f"{v['status']}{side}"
 

@@ -45,6 +45,10 @@ def test_criterion_passes_faithful_fails_weak_and_too_strong_waits_for_the_windo
     assert v["status"] == "running" and v["reached"] == 90_000
     assert R.verdict_text(v, check, CELL.steps) == "running: reached 90,000 of 100,000 steps"
     assert R.verdict_text(R.verdict(partial.iloc[:0], CELL, check, 0.1), check, CELL.steps) == "not started"
+    one = R.verdict(partial[partial["seed"] == 1], CELL, check, 0.1)  # seed 0 not begun
+    assert one["status"] == "running" and one["reached"] == 0 and one["started"] == 1
+    assert R.verdict_text(one, check, CELL.steps) == ("running: 1 of 2 seeds started, the furthest at 90,000 of "
+                                                      "100,000 steps")
     # evaluations outside (lo, hi] do not count
     assert R.window_means(_curves({0: [1.0] * 10}, start=0), 50_000, 100_000).tolist() == [1.0]
 
@@ -67,8 +71,8 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
-    # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 13 cells of one window each
-    assert n == {"reproduction": 10, "vaprl_ablation": 13}[suite]
+    # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 14 cells of one window each
+    assert n == {"reproduction": 10, "vaprl_ablation": 14}[suite]
 
 
 @requires_data
@@ -90,6 +94,7 @@ def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
     assert by["vaprl_replay_candidates"].config["candidates"] == "replay"
     assert by["vaprl_demo_relabel"].config["relabel_demos"] is True
     assert by["vaprl_future_demo_relabel"].config["relabel"] == "future_demo"
+    assert by["vaprl_goal_terminal"].config["success_ends_phase"] is True
     assert by["vaprl_replay_candidates"].config["relabel_demos"] is False
     fast = by["vaprl_demo_relabel_fast_lambda"].config
     assert fast["relabel_demos"] is True and fast["lagrange_lr"] == 0.003
@@ -178,7 +183,7 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
-    assert not at.exception and len(at.get("vega_lite_chart")) == 13  # the ablation: 13 cells
+    assert not at.exception and len(at.get("vega_lite_chart")) == 14  # the ablation: 14 cells
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
