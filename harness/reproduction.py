@@ -125,6 +125,12 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
             "started": sum(r > 0 for r in by_seed), "seeds": len(by_seed)}
 
 
+def _short(text: str) -> str:
+    """A verdict short enough for a panel title, e.g. "1 of 2 seeds at 90,000 of 300,000 steps"."""
+    text = text.replace("running: reached", "at")
+    return text.replace("running: ", "").replace(" seeds started, the furthest at", " seeds at")
+
+
 def verdict_text(v: dict, check: Check, steps: int) -> str:
     if v["status"] == "running":
         if v["reached"]:
@@ -228,7 +234,7 @@ def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.
     for check in cell.checks:
         ax.axvspan(check.lo / scale, check.hi / scale, color="tab:orange", alpha=0.12, lw=0)
         text = verdict_text(verdict(ours_c, cell, check, ladder.widen), check, cell.steps)
-        verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {text.replace('running: reached', 'at')}")
+        verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {_short(text)}")
     ax.set_xlim(0, cell.steps / scale)
     ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel(f"Environment steps ({unit})")
