@@ -1,5 +1,6 @@
 import ctypes.util
 import os
+import signal
 
 import numpy as np
 import pytest
@@ -12,6 +13,12 @@ if ctypes.util.find_library("OSMesa"):
     os.environ.setdefault("MUJOCO_GL", "osmesa")
 elif not os.environ.get("DISPLAY"):
     os.environ.setdefault("MUJOCO_GL", "disable")
+
+# the Ctrl-C tests send SIGINT to a harness subprocess. A shell without job control starts a background job (`pytest &`)
+# with SIGINT ignored, children inherit that, and Python then never raises KeyboardInterrupt: the run would finish
+# (exit 0) or hang. Give the children a terminal's disposition: a handled signal is reset to the default on exec
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def _has_data() -> bool:
