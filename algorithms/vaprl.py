@@ -5,9 +5,9 @@ Two registered variants share this file:
 - ``vaprl`` -- the method as published: the behaviour of the ORIGINAL VaPRL code (google-research
   ``reset_free_learning/reset_free.py``, TF-Agents, the code behind the EARL curves), wherever that code fixes it:
   plain 256-256 MLPs without the LayerNorm trunk, no bootstrapping across a phase end or hard reset (TF-Agents ends
-  the episode there: discount 0), fixed-length phases in which reaching the goal earns reward but does not end the
-  phase (the code's default ``ResetFreeWrapper``), hindsight relabelling of each finished phase with its final
-  achieved state (``goal_relabel_type`` 0), subgoals chosen by the Lagrangian rule
+  the episode there: discount 0), phases that end when the goal or subgoal is reached (a termination, then the goal
+  switches: the code's ``use_reset_goals`` 3, ``GoalTerminalResetFreeWrapper``), hindsight relabelling of each
+  finished phase with its final achieved state (``goal_relabel_type`` 0), subgoals chosen by the Lagrangian rule
   ``argmin_c ||c - mean(rho0)|| - lambda * V(c, g*)`` with lambda starting at 0 and raised by a dual Adam step
   whenever the chosen subgoals' value is below the threshold, V from the SAC critic itself (min over its two heads,
   mean over policy actions, ``use_minimum``: min(V(s_now -> c), V(c -> g*))).
@@ -17,12 +17,15 @@ Two registered variants share this file:
   than the published VaPRL curve (docs/reproduction.md, the VaPRL ablation).
 
 Settings the original code leaves to per-experiment flags that were not published (DEFAULT, documented in
-docs/reproduction.md): phase length 200 / 300 / 200 (RISC's values; the code's flag default is 400), the value threshold
-``kappa * V_max`` with kappa 0.5 and V_max the most one phase can earn in the critic's units (:func:`value_ceiling`:
-866 for a 200-step phase at reward scale 10 and discount 0.99 -- a unit of 10, RISC's, would put every demo state
-above the threshold, lambda would stay 0 and the subgoal would always be rho0: no curriculum), the multiplier's learning rate 3e-4 (flag default) and no upper bound (flag
-default), one policy action per value estimate (flag default ``num_action_samples`` 1), no relabelling of the demos
-(``relabel_demos`` off: the flag default of ``relabel_offline_data``; the ablation's ``vaprl_demo_relabel`` turns it on).
+docs/reproduction.md): success ends the phase (``use_reset_goals`` 3; the flag's default 1, ``ResetFreeWrapper``, lets
+the phase run on to its limit after the goal is reached: with it ``vaprl`` never succeeded to 300k on tabletop, 2 seeds,
+while with 3 it passes the published 200k-300k window -- the ablation's ``vaprl_goal_terminal``), phase length
+200 / 300 / 200 (RISC's values; the code's flag default is 400), the value threshold ``kappa * V_max`` with kappa 0.5
+and V_max the most one phase can earn in the critic's units (:func:`value_ceiling`: one scaled reward, 10, when success
+ends the phase; 866 for a 200-step phase that runs on), the multiplier's learning rate 3e-4 (flag default) and no upper
+bound (flag default), one policy action per value estimate (flag default ``num_action_samples`` 1), no relabelling of
+the demos (``relabel_demos`` off: the flag default of ``relabel_offline_data``; the ablation's ``vaprl_demo_relabel``
+turns it on).
 
 Every config switch below selects one behaviour of one of the two codes, so an ablation restores one of them at a time.
 
@@ -60,8 +63,8 @@ class VaPRLConfig(GCConfig):
 
     use_trunk: bool = False  # TF-Agents ActorDistributionNetwork / CriticNetwork: plain 256-256 MLPs
     bootstrap_on_truncation: bool = False  # phase end = TF-Agents termination (discount 0)
-    success_ends_phase: bool = setting(False, "reaching the goal ends the phase (terminal); False: it earns "
-                                              "reward and the phase runs to its limit (ResetFreeWrapper)")
+    success_ends_phase: bool = setting(True, "reaching the goal ends the phase (terminal; use_reset_goals 3); False: "
+                                             "it earns reward and the phase runs to its limit (ResetFreeWrapper)")
     relabel: str = setting("final", "hindsight relabelling: final = one copy per phase with its final state, "
                                     "final_failed = only of phases that missed their goal, future_demo = RISC's "
                                     "n_sampled_goals per transition, none", choices=RELABEL)

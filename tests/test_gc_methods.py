@@ -283,18 +283,21 @@ def test_demo_prefix_relabel_is_the_original_data_multiplier():
 
 
 def test_value_threshold_is_in_the_critics_units():
-    """vaprl: phases run to their limit and earn reward at every step at the goal, so V reaches
-    reward_scale (1 - gamma^H) / (1 - gamma) (866 for H = 200); RISC's unit of 10 (success ends the phase) would put
-    the threshold below every value the critic gives demo states and the curriculum would never leave rho0."""
+    """vaprl: success ends the phase, so V is at most one scaled reward (10) and the threshold is 5. With
+    success_ends_phase=false the phases run to their limit and earn reward at every step at the goal, so V reaches
+    reward_scale (1 - gamma^H) / (1 - gamma) (866 for H = 200); a unit of 10 there would put the threshold below every
+    value the critic gives demo states and the curriculum would never leave rho0."""
     vaprl = _make(VaPRL, VaPRLConfig)
-    np.testing.assert_allclose(value_ceiling(vaprl.cfg), 10 * (1 - 0.99**200) / 0.01)
-    np.testing.assert_allclose(vaprl.threshold, 0.5 * 10 * (1 - 0.99**200) / 0.01)
-    assert 430 < vaprl.threshold < 435
-    door = VaPRLConfig(phase_step_limit=300)
+    assert vaprl.cfg.success_ends_phase and value_ceiling(vaprl.cfg) == 10.0 and vaprl.threshold == 5.0
+    fixed = _make(VaPRL, VaPRLConfig, success_ends_phase=False)
+    np.testing.assert_allclose(value_ceiling(fixed.cfg), 10 * (1 - 0.99**200) / 0.01)
+    np.testing.assert_allclose(fixed.threshold, 0.5 * 10 * (1 - 0.99**200) / 0.01)
+    assert 430 < fixed.threshold < 435
+    door = VaPRLConfig(phase_step_limit=300, success_ends_phase=False)
     np.testing.assert_allclose(value_ceiling(door), 10 * (1 - 0.99**300) / 0.01)
-    assert value_ceiling(VaPRLRISCConfig()) == 10.0 and value_ceiling(VaPRLConfig(success_ends_phase=True)) == 10.0
+    assert value_ceiling(VaPRLRISCConfig()) == 10.0 and value_ceiling(VaPRLConfig(phase_step_limit=300)) == 10.0
     assert value_ceiling(VaPRLConfig(v_max=42.0)) == 42.0  # an explicit unit wins
-    np.testing.assert_allclose(value_ceiling(VaPRLConfig(bootstrap_on_truncation=True)), 1000.0)  # endless rewards
+    np.testing.assert_allclose(value_ceiling(VaPRLConfig(bootstrap_on_truncation=True, success_ends_phase=False)), 1000.0)  # endless rewards
 
 
 def test_lagrangian_rule_and_multiplier():
@@ -316,9 +319,11 @@ def test_lagrangian_rule_and_multiplier():
 
 
 def test_vaprl_uses_the_original_codes_behaviour():
-    """vaprl: no trunk, phase ends never bootstrapped, success does not end a phase, a final-state hindsight copy per
+    """vaprl: no trunk, phase ends never bootstrapped, success ends a phase (use_reset_goals 3); with
+    success_ends_phase=false (the code's ResetFreeWrapper) phases run to their limit; a final-state hindsight copy per
     phase, subgoals by the Lagrangian rule with V = min(V(s_now -> c), V(c -> g*)) from the SAC critic."""
-    v = _make(VaPRL, VaPRLConfig, seed_steps=10**6, phase_step_limit=25)
+    assert VaPRLConfig().success_ends_phase and not VaPRLConfig().bootstrap_on_truncation
+    v = _make(VaPRL, VaPRLConfig, seed_steps=10**6, phase_step_limit=25, success_ends_phase=False)
     assert isinstance(v.sac.actor.trunk, torch.nn.Identity) and v.value is None
     m = v.sac.bootstrap_mask(torch.tensor([[False, False, True]]), torch.tensor([[False, True, False]]))
     np.testing.assert_array_equal(m.numpy(), [[1.0, 0.0, 0.0]])
@@ -349,9 +354,9 @@ def test_vaprl_uses_the_original_codes_behaviour():
 
 
 def test_phase_any_success_diagnostic():
-    """phase/*_any_success: the share of phases that reached their goal at some step; with vaprl's phases (success does
-    not end them) a phase that touches its goal and leaves counts there but not in *_end_success."""
-    v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), seed_steps=10**6, phase_step_limit=10)
+    """phase/*_any_success: the share of phases that reached their goal at some step; with phases that success does
+    not end (success_ends_phase=false) a phase that touches its goal and leaves counts there but not in *_end_success."""
+    v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), seed_steps=10**6, phase_step_limit=10, success_ends_phase=False)
 
     class Scripted:  # the task, but the per-step success check (both members' rows) hits member 0 at steps 3 and 15
         def __init__(self, task):
