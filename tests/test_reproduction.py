@@ -71,8 +71,8 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
-    # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 16 cells of one window each
-    assert n == {"reproduction": 10, "vaprl_ablation": 16}[suite]
+    # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 17 cells of one window each
+    assert n == {"reproduction": 10, "vaprl_ablation": 17}[suite]
 
 
 @requires_data
@@ -103,7 +103,9 @@ def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
     assert by["vaprl_risc_no_tab"].config["bootstrap_on_truncation"] is False
     assert by["vaprl_risc"].config["bootstrap_on_truncation"] is True
     assert {g.config["kappa"] for g in ab if g.algo_class == "vaprl_risc"} == {0.3}  # the override's scope
-    assert {g.config["kappa"] for g in ab if g.algo_class == "vaprl"} == {0.5}
+    assert {g.config["kappa"] for g in ab if g.algo_class == "vaprl" and g.algo != "vaprl_threshold_1000"} == {0.5}
+    assert (by["vaprl_threshold_1000"].config["kappa"], by["vaprl_threshold_1000"].config["v_max"]) == (1.0, 1000.0)
+    assert by["vaprl_fixed_phases"].config["success_ends_phase"] is False
     assert len({g.config_hash for g in ab}) == len(ab)
 
 
@@ -183,7 +185,7 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
-    assert not at.exception and len(at.get("vega_lite_chart")) == 16  # the ablation: 16 cells
+    assert not at.exception and len(at.get("vega_lite_chart")) == 17  # the ablation: 17 cells
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
