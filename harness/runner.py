@@ -268,12 +268,16 @@ CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "chec
 
 
 def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
-    """A suite of ``cells`` (each its own algorithm, env, budget and seeds); ``algo=``/``env=`` select cells (by
-    algorithm or cell name), ``seeds=``/``steps=`` replace every cell's."""
+    """A suite of ``cells`` (each its own algorithm, env, budget and seeds); ``algo=``/``env=`` select cells: an
+    ``algo=`` word that is a cell's name selects the cells of that name, any other word every cell of that algorithm
+    (``algo=vaprl_risc`` in the VaPRL ablation is its one base cell, ``algo=vaprl`` every variant built on ``vaprl``);
+    ``seeds=``/``steps=`` replace every cell's."""
     cells = suite["cells"]
     if not isinstance(cells, list) or not cells:
         raise ConfigError("suite key 'cells' must be a non-empty list of {algo, env, steps, ...} mappings")
-    pick_algos, pick_envs = set(req.algos), set(req.envs)
+    names = {str(c.get("name") or c.get("algo")) for c in cells if isinstance(c, dict)}
+    pick_names = set(req.algos) & names
+    pick_algos, pick_envs = set(req.algos) - pick_names, set(req.envs)
     units, seen = [], set()
     for n, c in enumerate(cells):
         where = f"cell {n + 1} of suite 'cells'"
@@ -290,7 +294,8 @@ def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
         config = c.get("config") or {}
         if not isinstance(config, dict):
             raise ConfigError(f"{where}: config must map keys of {algo!r} to values")
-        if pick_algos and not pick_algos & {algo, name} or pick_envs and env not in pick_envs:
+        if (pick_names or pick_algos) and not (name in pick_names or algo in pick_algos) or (
+                pick_envs and env not in pick_envs):
             continue
         seeds = list(req.seeds) if req.seeds is not None else parse_seeds(c.get("seeds", suite.get("seeds", 1)))
         steps = req.steps if req.steps is not None else _int(f"steps of {where}", c["steps"], 1, MAX_STEPS)

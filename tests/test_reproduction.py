@@ -87,6 +87,13 @@ def test_cells_plan_their_own_budgets_seeds_members_and_variants(tmp_path):
     adhoc = plan_words(["algo=risc", "env=sawyer_door", "seeds=2", f"results={tmp_path}"]).groups
     assert [(g.algo, g.steps) for g in one] == [("risc", 500_000)]
     assert one[0].config_hash == adhoc[0].config_hash
+    # algo= names a cell, or else an algorithm: the ablation's base cell alone, or every variant built on vaprl
+    base = plan_words(["suite=vaprl_ablation", "algo=vaprl_risc", f"results={tmp_path}"]).groups
+    assert [g.algo for g in base] == ["vaprl_risc"]
+    on_vaprl = {g.algo for g in plan_words(["suite=vaprl_ablation", "algo=vaprl", f"results={tmp_path}"]).groups}
+    assert "vaprl_goal_terminal" in on_vaprl and not any(a.startswith("vaprl_risc") for a in on_vaprl)
+    both = plan_words(["suite=vaprl_ablation", "algo=vaprl_risc_mlp,vaprl", f"results={tmp_path}"]).groups
+    assert {g.algo for g in both} == on_vaprl | {"vaprl_risc_mlp"}
     # variants: a name, the base algorithm's class and config overrides; a command-line override still wins
     ab = plan_words(["suite=vaprl_ablation", "vaprl_risc.kappa=0.3", f"results={tmp_path}"]).groups
     by = {g.algo: g for g in ab}
