@@ -125,19 +125,16 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
             "started": sum(r > 0 for r in by_seed), "seeds": len(by_seed)}
 
 
-def _short(text: str) -> str:
-    """A verdict short enough for a panel title, e.g. "1 of 2 seeds at 90,000 of 300,000 steps"."""
-    text = text.replace("running: reached", "at")
-    return text.replace("running: ", "").replace(" seeds started, the furthest at", " seeds at")
-
-
-def verdict_text(v: dict, check: Check, steps: int) -> str:
+def verdict_text(v: dict, check: Check, steps: int, short: bool = False) -> str:
+    """The verdict in words; ``short``: brief enough for a panel title ("at 90,000 of 300,000 steps")."""
     if v["status"] == "running":
         if v["reached"]:
-            return f"running: reached {v['reached']:,} of {steps:,} steps"
+            return f"{'at' if short else 'running: reached'} {v['reached']:,} of {steps:,} steps"
         if v.get("started"):
-            return (f"running: {v['started']} of {v['seeds']} seeds started, the furthest at {v['furthest']:,} of "
-                    f"{steps:,} steps")
+            seeds = f"{v['started']} of {v['seeds']} seeds"
+            if short:
+                return f"{seeds} at {v['furthest']:,} of {steps:,} steps"
+            return f"running: {seeds} started, the furthest at {v['furthest']:,} of {steps:,} steps"
         return "not started"
     side = "" if v["status"] == "pass" else (" (too weak)" if v["ours"] < v["lower"] else " (too strong)")
     return f"{v['status']}{side}"
@@ -233,8 +230,8 @@ def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.
     verdicts = []
     for check in cell.checks:
         ax.axvspan(check.lo / scale, check.hi / scale, color="tab:orange", alpha=0.12, lw=0)
-        text = verdict_text(verdict(ours_c, cell, check, ladder.widen), check, cell.steps)
-        verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {_short(text)}")
+        text = verdict_text(verdict(ours_c, cell, check, ladder.widen), check, cell.steps, short=True)
+        verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {text}")
     ax.set_xlim(0, cell.steps / scale)
     ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel(f"Environment steps ({unit})")

@@ -297,7 +297,8 @@ def test_value_threshold_is_in_the_critics_units():
     np.testing.assert_allclose(value_ceiling(door), 10 * (1 - 0.99**300) / 0.01)
     assert value_ceiling(VaPRLRISCConfig()) == 10.0 and value_ceiling(VaPRLConfig(phase_step_limit=300)) == 10.0
     assert value_ceiling(VaPRLConfig(v_max=42.0)) == 42.0  # an explicit unit wins
-    np.testing.assert_allclose(value_ceiling(VaPRLConfig(bootstrap_on_truncation=True, success_ends_phase=False)), 1000.0)  # endless rewards
+    endless = VaPRLConfig(bootstrap_on_truncation=True, success_ends_phase=False)  # rewards through phase ends
+    np.testing.assert_allclose(value_ceiling(endless), 1000.0)
 
 
 def test_lagrangian_rule_and_multiplier():
@@ -355,7 +356,7 @@ def test_vaprl_uses_the_original_codes_behaviour():
 
 def test_phase_any_success_diagnostic():
     """phase/*_any_success: the share of phases that reached their goal at some step; with phases that success does
-    not end (success_ends_phase=false) a phase that touches its goal and leaves counts there but not in *_end_success."""
+    not end (success_ends_phase=false) a phase that touches its goal and leaves counts there, not in *_end_success."""
     v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), seed_steps=10**6, phase_step_limit=10, success_ends_phase=False)
 
     class Scripted:  # the task, but the per-step success check (both members' rows) hits member 0 at steps 3 and 15

@@ -49,6 +49,8 @@ def test_criterion_passes_faithful_fails_weak_and_too_strong_waits_for_the_windo
     assert one["status"] == "running" and one["reached"] == 0 and one["started"] == 1
     assert R.verdict_text(one, check, CELL.steps) == ("running: 1 of 2 seeds started, the furthest at 90,000 of "
                                                       "100,000 steps")
+    assert R.verdict_text(one, check, CELL.steps, short=True) == "1 of 2 seeds at 90,000 of 100,000 steps"
+    assert R.verdict_text(v, check, CELL.steps, short=True) == "at 90,000 of 100,000 steps"
     # evaluations outside (lo, hi] do not count
     assert R.window_means(_curves({0: [1.0] * 10}, start=0), 50_000, 100_000).tolist() == [1.0]
 
@@ -71,7 +73,7 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
-    # checks: the ladder has 9 cells (vaprl tabletop has two windows), the ablation 19 cells, two of them with two windows
+    # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 19 cells (two of them: two windows)
     assert n == {"reproduction": 10, "vaprl_ablation": 21}[suite]
 
 
