@@ -128,6 +128,11 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
 def verdict_text(v: dict, check: Check, steps: int, short: bool = False) -> str:
     """The verdict in words; ``short``: brief enough for a panel title ("at 90,000 of 300,000 steps")."""
     if v["status"] == "running":
+        if v["reached"] and v["reached"] < v["furthest"]:
+            if short:
+                return f"{v['seeds']} seeds at {v['reached']:,}-{v['furthest']:,} of {steps:,} steps"
+            return (f"running: {v['seeds']} seeds, the slowest at {v['reached']:,}, the furthest at "
+                    f"{v['furthest']:,} of {steps:,} steps")
         if v["reached"]:
             return f"{'at' if short else 'running: reached'} {v['reached']:,} of {steps:,} steps"
         if v.get("started"):

@@ -43,14 +43,18 @@ def test_criterion_passes_faithful_fails_weak_and_too_strong_waits_for_the_windo
     partial = _curves({0: ten(0.6, 0.6), 1: ten(0.6, 0.6)[:-1]})
     v = R.verdict(partial, CELL, check, 0.1)
     assert v["status"] == "running" and v["reached"] == 90_000
-    assert R.verdict_text(v, check, CELL.steps) == "running: reached 90,000 of 100,000 steps"
+    assert R.verdict_text(v, check, CELL.steps) == ("running: 2 seeds, the slowest at 90,000, the furthest at "
+                                                    "100,000 of 100,000 steps")
+    level = R.verdict(_curves({0: ten(0.6, 0.6)[:-1], 1: ten(0.6, 0.6)[:-1]}), CELL, check, 0.1)
+    assert R.verdict_text(level, check, CELL.steps) == "running: reached 90,000 of 100,000 steps"
+    assert R.verdict_text(level, check, CELL.steps, short=True) == "at 90,000 of 100,000 steps"
     assert R.verdict_text(R.verdict(partial.iloc[:0], CELL, check, 0.1), check, CELL.steps) == "not started"
     one = R.verdict(partial[partial["seed"] == 1], CELL, check, 0.1)  # seed 0 not begun
     assert one["status"] == "running" and one["reached"] == 0 and one["started"] == 1
     assert R.verdict_text(one, check, CELL.steps) == ("running: 1 of 2 seeds started, the furthest at 90,000 of "
                                                       "100,000 steps")
     assert R.verdict_text(one, check, CELL.steps, short=True) == "1 of 2 seeds at 90,000 of 100,000 steps"
-    assert R.verdict_text(v, check, CELL.steps, short=True) == "at 90,000 of 100,000 steps"
+    assert R.verdict_text(v, check, CELL.steps, short=True) == "2 seeds at 90,000-100,000 of 100,000 steps"
     # evaluations outside (lo, hi] do not count
     assert R.window_means(_curves({0: [1.0] * 10}, start=0), 50_000, 100_000).tolist() == [1.0]
 
