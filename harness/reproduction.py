@@ -214,6 +214,15 @@ def plot_ladder(ladder: Ladder, ours: pd.DataFrame, published: pd.DataFrame | No
     return fig
 
 
+def seed_mean(curves: pd.DataFrame) -> pd.Series:
+    """Mean over seeds per step, up to the last step every seed reached, so the mean never changes which seeds it
+    averages part-way (seeds that have gone further show as their own lines)."""
+    if curves.empty:
+        return pd.Series(dtype=float)
+    common = curves.groupby("seed")["step"].max().min()
+    return curves[curves["step"] <= common].groupby("step")["value"].mean()
+
+
 def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.DataFrame | None) -> None:
     scale = 1e6 if cell.steps >= 1e6 else 1e3
     unit = "M" if scale == 1e6 else "k"
@@ -228,8 +237,8 @@ def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.
             ax.plot(m.index / scale, m.values, color="0.25", lw=1.8, dashes=(4, 2), label="published (mean)")
     for _, g in ours_c.groupby("seed"):
         g = g.sort_values("step")
-        ax.plot(g["step"] / scale, g["value"], color="tab:blue", lw=0.7, alpha=0.6)
-    m = ours_c.groupby("step")["value"].mean()
+        ax.plot(g["step"] / scale, g["value"], color="tab:blue", lw=0.9, alpha=0.7)
+    m = seed_mean(ours_c)
     if len(m):
         ax.plot(m.index / scale, m.values, color="tab:blue", lw=1.8, label="ours (mean)")
     verdicts = []

@@ -59,6 +59,13 @@ def test_criterion_passes_faithful_fails_weak_and_too_strong_waits_for_the_windo
     assert R.window_means(_curves({0: [1.0] * 10}, start=0), 50_000, 100_000).tolist() == [1.0]
 
 
+def test_seed_mean_stops_where_the_slowest_seed_stops():
+    # seed 0 to 100k at 1.0, seed 1 to 30k at 0.0: the mean is 0.5 to 30k and absent beyond (not seed 0 alone)
+    m = R.seed_mean(_curves({0: [1.0] * 10, 1: [0.0] * 3}))
+    assert m.index.tolist() == [10_000, 20_000, 30_000] and m.tolist() == [0.5, 0.5, 0.5]
+    assert R.seed_mean(_curves({0: [1.0] * 3}).iloc[:0]).empty
+
+
 @requires_data
 @pytest.mark.parametrize("suite", SUITES)
 def test_suite_published_numbers_match_the_published_curves(suite):
