@@ -491,3 +491,31 @@ def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("error: give a VaPRL cell directory")
     assert probe.main([str(tmp_path / "adhoc" / ENV / "vaprl"), "lambdas=1,x"]) == 2
     assert capsys.readouterr().err.startswith("error: lambdas must be comma-separated numbers")
+
+
+def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
+    """scripts/start_pose_probe.py loads a 2-member sawyer_door checkpoint and prints, per seed, success from rho0 and
+    from the handle pose; a directory without checkpoints or a bad episode count is one error line and exit 2."""
+    import importlib.util
+
+    from harness.cli import main as harness_main
+
+    assert harness_main(["run", "algo=vaprl", "env=sawyer_door", "steps=100", "eval_every=100", "eval_episodes=1",
+                         "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
+                         "checkpoint_every=100", f"results={tmp_path}"]) == 0
+    path = Path(__file__).parents[1] / "scripts" / "start_pose_probe.py"
+    spec = importlib.util.spec_from_file_location("start_pose_probe", path)
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    pose = probe.handle_pose("sawyer_door")  # hand near the handle, well below rho0's raised hand
+    assert pose.shape == (4,) and pose[2] < 0.15
+    capsys.readouterr()
+    assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    heads = [line.split(" at step")[0] for line in lines[::3]]
+    assert heads == ["sawyer_door/vaprl seed 0", "sawyer_door/vaprl seed 1"]
+    assert sum("from rho0" in line for line in lines) == 2 and sum("from hand at handle" in line for line in lines) == 2
+    assert probe.main([str(tmp_path)]) == 2
+    assert capsys.readouterr().err.startswith("error: give a cell directory")
+    assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=x"]) == 2
+    assert capsys.readouterr().err.startswith("error: episodes must be")
