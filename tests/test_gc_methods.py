@@ -464,21 +464,27 @@ def test_aux_critic_update_matches_autograd(squash):
         torch.testing.assert_close(a, b, atol=2e-6, rtol=1e-5)
 
 
-def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
-    """scripts/vaprl_curriculum_probe.py loads a real run's checkpoint and applies the Lagrangian rule: at lambda 0
-    every pick is the candidate nearest rho0 (L2 0.0), one line per (task goal, seed) and rule; a directory without
-    checkpoints is one error line and exit 2."""
+def _probe_script(name: str, tmp_path, env: str):
+    """A tiny 2-member VaPRL run on ``env`` (checkpoint at step 100) under ``tmp_path``, and ``scripts/<name>.py``
+    loaded as a module."""
     import importlib.util
 
     from harness.cli import main as harness_main
 
-    assert harness_main(["run", "algo=vaprl", f"env={ENV}", "steps=100", "eval_every=100", "eval_episodes=1",
+    assert harness_main(["run", "algo=vaprl", f"env={env}", "steps=100", "eval_every=100", "eval_episodes=1",
                          "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
                          "checkpoint_every=100", f"results={tmp_path}"]) == 0
-    path = Path(__file__).parents[1] / "scripts" / "vaprl_curriculum_probe.py"
-    spec = importlib.util.spec_from_file_location("vaprl_curriculum_probe", path)
-    probe = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(probe)
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
+    """scripts/vaprl_curriculum_probe.py loads a real run's checkpoint and applies the Lagrangian rule: at lambda 0
+    every pick is the candidate nearest rho0 (L2 0.0), one line per (task goal, seed) and rule; a directory without
+    checkpoints is one error line and exit 2."""
+    probe = _probe_script("vaprl_curriculum_probe", tmp_path, ENV)
     capsys.readouterr()
     assert probe.main([str(tmp_path / "adhoc" / ENV / "vaprl"), "lambdas=0,1e9"]) == 0
     lines = capsys.readouterr().out.splitlines()
@@ -496,17 +502,7 @@ def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
 def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     """scripts/start_pose_probe.py loads a 2-member sawyer_door checkpoint and prints, per seed, success from rho0 and
     from the handle pose; a directory without checkpoints or a bad episode count is one error line and exit 2."""
-    import importlib.util
-
-    from harness.cli import main as harness_main
-
-    assert harness_main(["run", "algo=vaprl", "env=sawyer_door", "steps=100", "eval_every=100", "eval_episodes=1",
-                         "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
-                         "checkpoint_every=100", f"results={tmp_path}"]) == 0
-    path = Path(__file__).parents[1] / "scripts" / "start_pose_probe.py"
-    spec = importlib.util.spec_from_file_location("start_pose_probe", path)
-    probe = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(probe)
+    probe = _probe_script("start_pose_probe", tmp_path, "sawyer_door")
     pose = probe.handle_pose("sawyer_door")  # hand near the handle, well below rho0's raised hand
     assert pose.shape == (4,) and pose[2] < 0.15
     capsys.readouterr()
