@@ -3,12 +3,13 @@
     python scripts/start_pose_probe.py RUN_DIR [episodes=10]
 
 RUN_DIR is one cell's directory of a results tree (e.g. ~/runs/reproduction/sawyer_door/vaprl). For each checkpointed
-seed the probe rolls the deterministic forward policy (``eval_act``) for the eval horizon from two starts per episode:
-the env's own reset (rho0: door open, hand raised away from it), and the same door angle with the hand and gripper
-where the forward demos hold the handle before the door moves (hand within 0.08 of the handle point, which the finger
-geometry keeps 0.06 away at the closest; handle within 0.02 of where it starts). A policy that succeeds only from the
-second start has learned to close the door from the handle pose its training phases begin in, not from the pose
-deployment begins in (docs/reproduction.md, "`vaprl` on sawyer_door"). Read-only: nothing in RUN_DIR changes.
+seed the probe runs the protocol's deployed evaluation (``harness.protocol.evaluate``: the deterministic policy, success
+at any step of the eval horizon) from two starts: the env's own reset (rho0: door open, hand raised away from it), and
+each such reset's door angle with the hand and gripper where the forward demos hold the handle before the door moves
+(hand within 0.08 of the handle point, which the finger geometry keeps 0.06 away at the closest; handle within 0.02 of
+where it starts). A policy that succeeds only from the second start has learned to close the door from the handle
+pose its training phases begin in, not from the pose deployment begins in (docs/reproduction.md, "`vaprl` on
+sawyer_door"). Read-only: nothing in RUN_DIR changes.
 """
 
 from __future__ import annotations
@@ -16,13 +17,15 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import torch
 import yaml
 
 from algorithms.api import DemoSet
 from harness.data import load_demos
-from harness.envs import get_spec, make_env
+from harness.envs import get_spec, make_eval_env
+from harness.protocol import evaluate, load_checkpoint
 from harness.registry import ALGORITHMS
 
 
@@ -36,15 +39,18 @@ def handle_pose(env_name: str) -> np.ndarray:
     return obs[near][:, 0:4].mean(axis=0)
 
 
-def rollout(env, algo, member: int, start: dict, horizon: int) -> tuple[bool, bool]:
-    """One deterministic episode of ``member``'s policy from ``start``: (success at the end, success at any step)."""
-    obs, _ = env.reset(options=start)
-    any_success, E = False, len(algo.seeds)
-    for _ in range(horizon):
-        action = algo.eval_act(np.repeat(obs[None].astype(np.float32), E, axis=0))[member]
-        obs, _, _, _, info = env.step(action)
-        any_success |= info["success"]
-    return bool(info["success"]), any_success
+class HandAtHandle(gym.Wrapper):
+    """Each reset draws s0 ~ rho0 as the env does, then moves the hand and gripper to ``pose`` (door angle kept)."""
+
+    def __init__(self, env: gym.Env, pose: np.ndarray):
+        super().__init__(env)
+        self.pose = pose
+
+    def reset(self, *, seed=None, options=None):
+        start, _ = self.env.reset(seed=seed, options=options)
+        held = start.copy()
+        held[0:4] = self.pose
+        return self.env.reset(options={"state": held})
 
 
 def main(argv: list[str]) -> int:
@@ -65,21 +71,15 @@ def main(argv: list[str]) -> int:
         env_name, cls = meta["env"], ALGORITHMS[meta["algo"]]
         demos = DemoSet(load_demos(env_name, "forward"), load_demos(env_name, "reverse"))
         algo = cls(get_spec(env_name), demos, cls.Config.from_dict(meta["config"]), seeds, torch.device("cpu"))
-        state = torch.load(ckpt, map_location="cpu", weights_only=False)
+        state = load_checkpoint(ckpt)
         algo.load_state_dict(state["algo"])
-        env, pose, horizon = make_env(env_name), handle_pose(env_name), get_spec(env_name).eval_horizon
+        pose, step = handle_pose(env_name), state["step"]
+        starts = {"rho0": [make_eval_env(env_name) for _ in seeds],
+                  "hand at handle": [HandAtHandle(make_eval_env(env_name), pose) for _ in seeds]}
+        rates = {name: evaluate(algo, envs, seeds, step, episodes)[0] for name, envs in starts.items()}
         for member, seed in enumerate(seeds):
-            counts = {"rho0": np.zeros(2), "hand at handle": np.zeros(2)}
-            for ep in range(episodes):
-                start, _ = env.reset(seed=ep)
-                held = start.copy()
-                held[0:4] = pose
-                counts["rho0"] += rollout(env, algo, member, {"state": start}, horizon)
-                counts["hand at handle"] += rollout(env, algo, member, {"state": held}, horizon)
-            print(f"{env_name}/{meta['algo']} seed {seed} at step {state['step']:,}, {episodes} episodes of {horizon}:")
-            for name, (final, anytime) in counts.items():
-                print(f"  from {name:15s} success at the end {final / episodes:.2f}, "
-                      f"at any step {anytime / episodes:.2f}")
+            print(f"{env_name}/{meta['algo']} seed {seed} at step {step:,}, deployed success over {episodes} "
+                  "episodes: " + ", ".join(f"from {name} {rate[member]:.2f}" for name, rate in rates.items()))
     return 0
 
 

@@ -508,9 +508,15 @@ def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     capsys.readouterr()
     assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=1"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    heads = [line.split(" at step")[0] for line in lines[::3]]
-    assert heads == ["sawyer_door/vaprl seed 0", "sawyer_door/vaprl seed 1"]
-    assert sum("from rho0" in line for line in lines) == 2 and sum("from hand at handle" in line for line in lines) == 2
+    assert [line.split(" at step")[0] for line in lines] == ["sawyer_door/vaprl seed 0", "sawyer_door/vaprl seed 1"]
+    assert all("from rho0 0." in line and "from hand at handle 0." in line for line in lines)
+    # the wrapper keeps rho0's door angle and puts the hand at the pose
+    from harness.envs import make_eval_env
+
+    start, _ = make_eval_env("sawyer_door").reset(seed=3)
+    held, _ = probe.HandAtHandle(make_eval_env("sawyer_door"), pose).reset(seed=3)
+    np.testing.assert_allclose(held[4:7], start[4:7], atol=1e-3)
+    np.testing.assert_allclose(held[0:3], pose[0:3], atol=1e-3)
     assert probe.main([str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: give a cell directory")
     assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=x"]) == 2
