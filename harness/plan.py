@@ -27,6 +27,7 @@ class RunSpec:
     eval_every: int = 10_000
     eval_episodes: int = 10
     checkpoint_every: int = 50_000
+    keep_every: int = 0  # > 0: checkpoints at multiples of it are also kept as checkpoint-<step>.pt
     log_every: int = 1000  # training diagnostics (Algorithm.metrics) into train.parquet; divides eval_every
     device: str = "cpu"
     results: str = "results"

@@ -16,7 +16,8 @@ Protocol (docs/algorithms.md 1.2-1.3):
 - the continuing metric is the cumulative reward of the train env (its own task goal).
 
 Checkpoints are taken at evaluation steps that are multiples of ``checkpoint_every`` and at the
-end; they hold the algorithm's full state (networks, optimizers, buffers, RNGs, phase), the train
+end (those at multiples of ``keep_every`` are also kept, as hard links ``checkpoint-<step>.pt``, for probes
+of the policy at that step); they hold the algorithm's full state (networks, optimizers, buffers, RNGs, phase), the train
 envs' simulator and wrapper state, the current observations and the counters. Re-running the same
 run resumes from the checkpoint and truncates each results table to that step, so the results
 equal an uninterrupted run's (timing metrics aside).
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import tempfile
 import time
 from dataclasses import dataclass
@@ -41,7 +43,7 @@ import torch
 from algorithms.api import Algorithm
 from harness.env_pool import LocalEnvs, WorkerEnvs, make_envs
 from harness.plan import RunSpec
-from harness.results import TRAIN_FILE, RunResults, write_status
+from harness.results import TRAIN_FILE, RunResults, kept_checkpoint_path, write_status
 
 
 @dataclass
@@ -181,6 +183,18 @@ def _atomic_torch_save(obj: Any, path: Path) -> None:
         raise
 
 
+def _keep(ckpt: Path, kept: Path) -> None:
+    """``kept`` becomes a hard link to ``ckpt`` (a copy where links are not supported), atomically; the next
+    checkpoint replaces ``ckpt``'s directory entry, not its data, so the kept one stays as it is."""
+    tmp = kept.with_name(f".keep.{kept.name}.tmp")
+    tmp.unlink(missing_ok=True)
+    try:
+        os.link(ckpt, tmp)
+    except OSError:
+        shutil.copy2(ckpt, tmp)
+    os.replace(tmp, kept)
+
+
 def train(
     spec: RunSpec,
     algo: Algorithm,
@@ -237,6 +251,8 @@ def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalE
     def checkpoint() -> None:
         state = {"step": step, "wall_s": wall, "last_success": last_success, "device": spec.device}
         _atomic_torch_save({**state, "algo": algo.state_dict(), "interaction": inter.state_dict()}, ckpt_path)
+        if spec.keep_every and step % spec.keep_every == 0:
+            _keep(ckpt_path, kept_checkpoint_path(ckpt_path, step))
 
     def report(rate: float, state: str) -> None:
         eta = (spec.steps - step) / rate if rate > 0 else math.inf

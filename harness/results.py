@@ -62,6 +62,11 @@ def parse_run_dir(path: Path, results: Path) -> dict[str, Any] | None:
             "algo": rest[-1] if rest else None, "seed": seed}
 
 
+def kept_checkpoint_path(ckpt: Path, step: int) -> Path:
+    """Where a checkpoint kept at ``step`` (``keep_every``) lies: ``checkpoint-<step>.pt`` beside ``ckpt``."""
+    return ckpt.with_name(f"{ckpt.stem}-{step}{ckpt.suffix}")
+
+
 def checkpoint_path(results: Path, suite: str, env: str, algo: str, seeds: list[int]) -> Path:
     """Where the group of ``seeds`` (trained together, E = len(seeds)) keeps its one checkpoint."""
     tag = "-".join(str(s) for s in seeds)

@@ -57,6 +57,8 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "eval_every": ("10000", "steps between deployed-policy evaluations"),
     "eval_episodes": ("10", "episodes per evaluation"),
     "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every)"),
+    "keep_every": ("0", "steps between checkpoints kept for later inspection (checkpoint-<step>.pt beside the one resumed "
+                        "from, hard links, a multiple of checkpoint_every; 0: keep only the latest)"),
     "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every)"),
     "members": ("1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)", "seeds trained in lockstep by one process"),
     "workers": ("cores (cuda: what the GPUs' memory and the cores hold)", "processes running groups in parallel"),
@@ -169,6 +171,7 @@ class RunRequest:
     eval_every: int | None = None
     eval_episodes: int | None = None
     checkpoint_every: int | None = None
+    keep_every: int | None = None
     log_every: int | None = None
     members: int | None = None
     workers: int | None = None
@@ -225,7 +228,7 @@ class RunRequest:
             envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
             seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps", 1, MAX_STEPS),
             eval_every=opt("eval_every", 1, MAX_STEPS), eval_episodes=opt("eval_episodes", 1, MAX_EPISODES),
-            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
+            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS), keep_every=opt("keep_every", 0, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
             members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
             results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
             calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
@@ -335,6 +338,9 @@ def build_plan(req: RunRequest) -> Plan:
     ckpt = value("checkpoint_every", 50_000, MAX_STEPS)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
+    keep = req.keep_every if req.keep_every is not None else _int("keep_every", suite.get("keep_every", 0), 0, MAX_STEPS)
+    if keep % ckpt:
+        raise ConfigError(f"keep_every ({keep}) must be a multiple of checkpoint_every ({ckpt})")
     log_every = value("log_every", min(1000, eval_every), MAX_STEPS)
     if eval_every % log_every:
         raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
@@ -366,7 +372,7 @@ def build_plan(req: RunRequest) -> Plan:
         h = config_hash(ident)
         groups += [RunSpec(suite=suite_name, env=u.env, algo=u.name, algo_class=u.algo_class,
                            seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
-                           eval_episodes=eval_episodes, checkpoint_every=ckpt, log_every=log_every,
+                           eval_episodes=eval_episodes, checkpoint_every=ckpt, keep_every=keep, log_every=log_every,
                            device=packing.device_of(len(groups) + n), results=req.results, config=cfg_plain,
                            config_hash=h, demo_source=fwd.source, git_sha=sha, study=req.study, trial=req.trial,
                            tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,

@@ -33,7 +33,7 @@ from harness.words import ConfigError
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every",
-              "log_every", "config", "members", "cells", "criterion"}
+              "keep_every", "log_every", "config", "members", "cells", "criterion"}
 
 
 def list_suites() -> list[str]:

@@ -1,6 +1,6 @@
 """Can a checkpoint's policy close sawyer_door from the deployed start pose, or only with the hand at the handle?
 
-    python scripts/start_pose_probe.py RUN_DIR [episodes=10]
+    python scripts/start_pose_probe.py RUN_DIR [episodes=10] [step=N]
 
 RUN_DIR is one cell's directory of a results tree (e.g. ~/runs/reproduction/sawyer_door/vaprl). For each checkpointed
 seed the probe runs the protocol's deployed evaluation (``harness.protocol.evaluate``: the deterministic policy, success
@@ -9,7 +9,8 @@ each such reset's door angle with the hand and gripper where the forward demos h
 (hand within 0.08 of the handle point, which the finger geometry keeps 0.06 away at the closest; handle within 0.02 of
 where it starts). A policy that succeeds only from the second start has learned to close the door from the handle
 pose its training phases begin in, not from the pose deployment begins in (docs/reproduction.md, "`vaprl` on
-sawyer_door"). Read-only: nothing in RUN_DIR changes.
+sawyer_door"). ``step=N`` probes the checkpoints kept at step N (a run with ``keep_every``) instead of the latest.
+Read-only: nothing in RUN_DIR changes.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from harness.data import load_demos
 from harness.envs import get_spec, make_eval_env
 from harness.protocol import evaluate, load_checkpoint
 from harness.registry import ALGORITHMS
+from harness.results import CHECKPOINT_FILE, kept_checkpoint_path
 
 
 def handle_pose(env_name: str) -> np.ndarray:
@@ -55,14 +57,16 @@ class HandAtHandle(gym.Wrapper):
 
 def main(argv: list[str]) -> int:
     run_dir = Path(argv[0]) if argv else None
-    ckpts = sorted(run_dir.glob("checkpoints/seeds=*/checkpoint.pt")) if run_dir else []
-    if not ckpts:
-        print(f"error: give a cell directory with checkpoints/seeds=*/checkpoint.pt (got {run_dir})", file=sys.stderr)
-        return 2
+    opts = dict(a.split("=", 1) for a in argv[1:] if "=" in a)
     try:
-        episodes = int(dict(a.split("=", 1) for a in argv[1:] if "=" in a).get("episodes", 10))
+        episodes, at = int(opts.get("episodes", 10)), int(opts["step"]) if "step" in opts else None
     except ValueError:
-        print("error: episodes must be a whole number", file=sys.stderr)
+        print("error: episodes and step must be whole numbers", file=sys.stderr)
+        return 2
+    name = CHECKPOINT_FILE if at is None else kept_checkpoint_path(Path(CHECKPOINT_FILE), at).name
+    ckpts = sorted(run_dir.glob(f"checkpoints/seeds=*/{name}")) if run_dir else []
+    if not ckpts:
+        print(f"error: give a cell directory with checkpoints/seeds=*/{name} (got {run_dir})", file=sys.stderr)
         return 2
     torch.set_num_threads(1)
     for ckpt in ckpts:

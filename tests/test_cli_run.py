@@ -169,6 +169,9 @@ def test_seed_lists():
         (["algo=medal", "env=sawyer_door", "medal.nope=3"], "unknown config key"),
         (["algo=medal", "env=sawyer_door", "medal.switch_every=x"], "switch_every must be an integer"),
         (["algo=medal", "env=sawyer_door", "eval_every=300", "checkpoint_every=1000"], "multiple of eval_every"),
+        (["algo=medal", "env=sawyer_door", "checkpoint_every=20000", "keep_every=30000"],
+         "keep_every (30000) must be a multiple of checkpoint_every (20000)"),
+        (["algo=medal", "env=sawyer_door", "keep_every=-1"], "keep_every must be >= 0"),
         (["algo=medal"], "give suite=NAME, or algo=... and env=..."),
     ],
 )

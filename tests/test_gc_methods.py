@@ -464,14 +464,14 @@ def test_aux_critic_update_matches_autograd(squash):
         torch.testing.assert_close(a, b, atol=2e-6, rtol=1e-5)
 
 
-def _probe_script(name: str, tmp_path, env: str):
-    """A tiny 2-member VaPRL run on ``env`` (checkpoint at step 100) under ``tmp_path``, and ``scripts/<name>.py``
-    loaded as a module."""
+def _probe_script(name: str, tmp_path, env: str, steps: int = 100):
+    """A tiny 2-member VaPRL run of ``steps`` on ``env`` (checkpoints every 100 steps, all kept) under ``tmp_path``,
+    and ``scripts/<name>.py`` loaded as a module."""
     import importlib.util
 
     from harness.cli import main as harness_main
 
-    assert harness_main(["run", "algo=vaprl", f"env={env}", "steps=100", "eval_every=100", "eval_episodes=1",
+    assert harness_main(["run", "algo=vaprl", f"env={env}", f"steps={steps}", "keep_every=100", "eval_every=100", "eval_episodes=1",
                          "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
                          "checkpoint_every=100", f"results={tmp_path}"]) == 0
     spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
@@ -502,7 +502,7 @@ def test_vaprl_curriculum_probe_reads_a_run(tmp_path, capsys):
 def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     """scripts/start_pose_probe.py loads a 2-member sawyer_door checkpoint and prints, per seed, success from rho0 and
     from the handle pose; a directory without checkpoints or a bad episode count is one error line and exit 2."""
-    probe = _probe_script("start_pose_probe", tmp_path, "sawyer_door")
+    probe = _probe_script("start_pose_probe", tmp_path, "sawyer_door", steps=200)
     pose = probe.handle_pose("sawyer_door")  # hand near the handle, well below rho0's raised hand
     assert pose.shape == (4,) and pose[2] < 0.15
     capsys.readouterr()
@@ -510,6 +510,9 @@ def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     lines = capsys.readouterr().out.splitlines()
     assert [line.split(" at step")[0] for line in lines] == ["sawyer_door/vaprl seed 0", "sawyer_door/vaprl seed 1"]
     assert all("from rho0 0." in line and "from hand at handle 0." in line for line in lines)
+    assert all(" at step 200," in line for line in lines)
+    assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=1", "step=100"]) == 0
+    assert all(" at step 100," in line for line in capsys.readouterr().out.splitlines())
     # the wrapper keeps rho0's door angle and puts the hand at the pose
     from harness.envs import make_eval_env
 
@@ -520,4 +523,6 @@ def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     assert probe.main([str(tmp_path)]) == 2
     assert capsys.readouterr().err.startswith("error: give a cell directory")
     assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=x"]) == 2
-    assert capsys.readouterr().err.startswith("error: episodes must be")
+    assert capsys.readouterr().err.startswith("error: episodes and step must be")
+    assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "step=300"]) == 2
+    assert capsys.readouterr().err.startswith("error: give a cell directory with checkpoints/seeds=*/checkpoint-300.pt")
