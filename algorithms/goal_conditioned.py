@@ -194,7 +194,16 @@ class GoalConditioned(Algorithm):
     def _begin_phase(self, obs: np.ndarray, mask: np.ndarray) -> None:
         self.phase_obs = obs  # the state each new phase starts from (read by goal hooks)
         self.goal[mask] = self.phase_goals(mask)[mask]
-        self.buffer.start_segment(with_goal(obs, self.goal, self.task.state_dim), mask)
+        start = with_goal(obs, self.goal, self.task.state_dim)
+        self.buffer.start_segment(start, mask)
+        # how far each new phase starts from its goal on the success coordinates: a phase that starts at its goal
+        # practises nothing (a curriculum stuck on subgoals its backward phases reach without moving shows here)
+        fwd = self.direction == FORWARD
+        distance = np.asarray(self.task.goal_distance(start), dtype=np.float64)
+        at_goal = distance <= self.task.success_threshold
+        self.log.add_host("phase/", {"forward_start_distance": distance, "forward_starts_at_goal": at_goal}, mask & fwd)
+        self.log.add_host("phase/", {"backward_start_distance": distance, "backward_starts_at_goal": at_goal},
+                          mask & ~fwd)
 
     def act(self, obs: np.ndarray) -> np.ndarray:
         self._obs = with_goal(obs, self.goal, self.task.state_dim)
@@ -271,5 +280,6 @@ class GoalConditioned(Algorithm):
     def metrics(self) -> dict[str, np.ndarray]:
         """sac/*: the agent's update diagnostics; phase/*: share of steps in backward phases, and of forward
         (backward) phases that ended in success, that reached their goal at any step (the same when success ends the
-        phase), or (RISC) ended by an early switch."""
+        phase), or (RISC) ended by an early switch; of phases that began already at their goal, and their mean
+        distance to it at the start (success coordinates)."""
         return self.log.pop()

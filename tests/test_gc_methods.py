@@ -381,6 +381,33 @@ def test_phase_any_success_diagnostic():
     assert not v.phase_hit.any()
 
 
+def test_phase_start_diagnostics_flag_phases_that_begin_at_their_goal():
+    """phase/*_starts_at_goal and *_start_distance: a backward subgoal equal to the state the phase starts in (as
+    `vaprl` on sawyer_door picked, a subgoal its backward phases reach without moving) counts as starting at its goal
+    with distance 0; forward phases from rho0 start at the rho0-to-goal distance on the success coordinates."""
+    v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), seed_steps=10**6, phase_step_limit=10)
+    goals = v.phase_goals
+
+    def here_if_backward(mask):  # member 0's subgoal: where it stands; member 1 keeps the curriculum's
+        out = goals(mask)
+        if mask[0] and v.direction[0] != FORWARD:
+            out[0] = v.phase_obs[0, : v.task.state_dim]
+        return out
+
+    v.phase_goals = here_if_backward
+    _run(v, ENV, (0, 1), 9)  # the first forward phase only: from rho0
+    m = v.metrics()
+    spec = get_spec(ENV)
+    rho0_gap = np.linalg.norm((spec.initial_states[0] - spec.goal_states[0])[list(spec.success_idx)])
+    assert m["phase/forward_starts_at_goal"].tolist() == [0.0, 0.0]
+    assert 0.5 * rho0_gap < m["phase/forward_start_distance"][0] <= 2 * rho0_gap
+    assert np.isnan(m["phase/backward_starts_at_goal"]).all()  # no backward phase yet (the protocol drops NaN)
+    _run(v, ENV, (0, 1), 40)
+    m = v.metrics()
+    assert m["phase/backward_starts_at_goal"][0] == 1.0 and m["phase/backward_start_distance"][0] == 0.0
+    assert m["phase/backward_start_distance"][1] > 0.0
+
+
 def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
     """candidates=replay (the original code's num_reset_candidates): each choice draws fresh states from the member's
     own replay buffer; the Lagrangian rule then runs on their L2 distance to mean(rho0)."""
