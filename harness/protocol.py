@@ -16,8 +16,8 @@ Protocol (docs/algorithms.md 1.2-1.3):
 - the continuing metric is the cumulative reward of the train env (its own task goal).
 
 Checkpoints are taken at evaluation steps that are multiples of ``checkpoint_every`` and at the
-end (those at multiples of ``keep_every`` are also kept, as hard links ``checkpoint-<step>.pt``, for probes
-of the policy at that step); they hold the algorithm's full state (networks, optimizers, buffers, RNGs, phase), the train
+end (those at multiples of ``keep_every`` are also kept, as ``checkpoint-<step>.pt``, to probe the policy at
+that step later); they hold the algorithm's full state (networks, optimizers, buffers, RNGs, phase), the train
 envs' simulator and wrapper state, the current observations and the counters. Re-running the same
 run resumes from the checkpoint and truncates each results table to that step, so the results
 equal an uninterrupted run's (timing metrics aside).
@@ -183,9 +183,13 @@ def _atomic_torch_save(obj: Any, path: Path) -> None:
         raise
 
 
-def _keep(ckpt: Path, kept: Path) -> None:
-    """``kept`` becomes a hard link to ``ckpt`` (a copy where links are not supported), atomically; the next
-    checkpoint replaces ``ckpt``'s directory entry, not its data, so the kept one stays as it is."""
+def _keep(ckpt: Path, step: int) -> None:
+    """The checkpoint at ``step`` (``ckpt``) is also kept as ``checkpoint-<step>.pt``: a hard link (a copy where links
+    are not supported), made atomically and only once. The next checkpoint replaces ``ckpt``'s directory entry, not
+    its data, so the kept one stays as it is (and from then on holds a full checkpoint's disk space)."""
+    kept = kept_checkpoint_path(ckpt, step)
+    if kept.exists():
+        return
     tmp = kept.with_name(f".keep.{kept.name}.tmp")
     tmp.unlink(missing_ok=True)
     try:
@@ -230,6 +234,8 @@ def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalE
         step, wall, last_success = ck["step"], ck["wall_s"], ck["last_success"]
         algo.load_state_dict(ck["algo"])
         inter.load_state_dict(ck["interaction"])
+        if spec.keep_every and step % spec.keep_every == 0:  # killed between the checkpoint and keeping it
+            _keep(ckpt_path, step)
         for r in results + diagnostics:
             r.resume(step)
         status = "resumed"
@@ -252,7 +258,7 @@ def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalE
         state = {"step": step, "wall_s": wall, "last_success": last_success, "device": spec.device}
         _atomic_torch_save({**state, "algo": algo.state_dict(), "interaction": inter.state_dict()}, ckpt_path)
         if spec.keep_every and step % spec.keep_every == 0:
-            _keep(ckpt_path, kept_checkpoint_path(ckpt_path, step))
+            _keep(ckpt_path, step)
 
     def report(rate: float, state: str) -> None:
         eta = (spec.steps - step) / rate if rate > 0 else math.inf

@@ -57,8 +57,7 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "eval_every": ("10000", "steps between deployed-policy evaluations"),
     "eval_episodes": ("10", "episodes per evaluation"),
     "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every)"),
-    "keep_every": ("0", "steps between checkpoints kept for later inspection (checkpoint-<step>.pt beside the one resumed "
-                        "from, hard links, a multiple of checkpoint_every; 0: keep only the latest)"),
+    "keep_every": ("0", "also keep the checkpoints at multiples of it (checkpoint-<step>.pt; each a full checkpoint)"),
     "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every)"),
     "members": ("1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)", "seeds trained in lockstep by one process"),
     "workers": ("cores (cuda: what the GPUs' memory and the cores hold)", "processes running groups in parallel"),
@@ -228,7 +227,8 @@ class RunRequest:
             envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
             seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps", 1, MAX_STEPS),
             eval_every=opt("eval_every", 1, MAX_STEPS), eval_episodes=opt("eval_episodes", 1, MAX_EPISODES),
-            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS), keep_every=opt("keep_every", 0, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
+            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS),
+            keep_every=opt("keep_every", 0, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
             members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
             results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
             calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
@@ -338,7 +338,8 @@ def build_plan(req: RunRequest) -> Plan:
     ckpt = value("checkpoint_every", 50_000, MAX_STEPS)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
-    keep = req.keep_every if req.keep_every is not None else _int("keep_every", suite.get("keep_every", 0), 0, MAX_STEPS)
+    keep = _int("keep_every", req.keep_every if req.keep_every is not None else suite.get("keep_every", 0), 0,
+                MAX_STEPS)
     if keep % ckpt:
         raise ConfigError(f"keep_every ({keep}) must be a multiple of checkpoint_every ({ckpt})")
     log_every = value("log_every", min(1000, eval_every), MAX_STEPS)
@@ -509,8 +510,9 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     from harness.results import RUN_FILE
 
     meta = {
-        "suite": spec.suite, "env": spec.env, "algo": spec.algo, "steps": spec.steps, "eval_every": spec.eval_every,
-        "eval_episodes": spec.eval_episodes, "device": spec.device, "group_seeds": list(spec.seeds),
+        "suite": spec.suite, "env": spec.env, "algo": spec.algo, "algo_class": spec.algo_class, "steps": spec.steps,
+        "eval_every": spec.eval_every, "eval_episodes": spec.eval_episodes, "device": spec.device,
+        "group_seeds": list(spec.seeds),
         "config": spec.config, "config_hash": spec.config_hash, "demo_source": spec.demo_source,
         **demos_fingerprint(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
         "python": sys.version.split()[0], "update": spec.update,

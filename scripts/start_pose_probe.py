@@ -66,13 +66,15 @@ def main(argv: list[str]) -> int:
     name = CHECKPOINT_FILE if at is None else kept_checkpoint_path(Path(CHECKPOINT_FILE), at).name
     ckpts = sorted(run_dir.glob(f"checkpoints/seeds=*/{name}")) if run_dir else []
     if not ckpts:
-        print(f"error: give a cell directory with checkpoints/seeds=*/{name} (got {run_dir})", file=sys.stderr)
+        kept = sorted({p.name for p in run_dir.glob("checkpoints/seeds=*/checkpoint-*.pt")}) if run_dir else []
+        print(f"error: give a cell directory with checkpoints/seeds=*/{name} (got {run_dir}"
+              + (f"; it keeps {', '.join(kept)})" if kept else ")"), file=sys.stderr)
         return 2
     torch.set_num_threads(1)
     for ckpt in ckpts:
         seeds = [int(x) for x in ckpt.parent.name.removeprefix("seeds=").split("-")]
         meta = yaml.safe_load((run_dir / f"seed={seeds[0]}" / "run.yaml").read_text())
-        env_name, cls = meta["env"], ALGORITHMS[meta["algo"]]
+        env_name, cls = meta["env"], ALGORITHMS[meta.get("algo_class", meta["algo"])]
         demos = DemoSet(load_demos(env_name, "forward"), load_demos(env_name, "reverse"))
         algo = cls(get_spec(env_name), demos, cls.Config.from_dict(meta["config"]), seeds, torch.device("cpu"))
         state = load_checkpoint(ckpt)

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+import yaml
 
 from algorithms.api import BACKWARD, FORWARD, DemoSet
 from algorithms.common import to_host
@@ -498,8 +499,8 @@ def _probe_script(name: str, tmp_path, env: str, steps: int = 100):
 
     from harness.cli import main as harness_main
 
-    assert harness_main(["run", "algo=vaprl", f"env={env}", f"steps={steps}", "keep_every=100", "eval_every=100", "eval_episodes=1",
-                         "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
+    assert harness_main(["run", "algo=vaprl", f"env={env}", f"steps={steps}", "keep_every=100", "eval_every=100",
+                         "eval_episodes=1", "seeds=2", "members=2", "vaprl.seed_steps=50", "vaprl.phase_step_limit=20",
                          "checkpoint_every=100", f"results={tmp_path}"]) == 0
     spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
@@ -538,8 +539,14 @@ def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     assert [line.split(" at step")[0] for line in lines] == ["sawyer_door/vaprl seed 0", "sawyer_door/vaprl seed 1"]
     assert all("from rho0 0." in line and "from hand at handle 0." in line for line in lines)
     assert all(" at step 200," in line for line in lines)
+    # a suite cell's run names the cell; run.yaml's algo_class names the algorithm to build
+    run_yaml = tmp_path / "adhoc" / "sawyer_door" / "vaprl" / "seed=0" / "run.yaml"
+    meta = yaml.safe_load(run_yaml.read_text())
+    assert meta["algo_class"] == "vaprl"
+    run_yaml.write_text(yaml.safe_dump({**meta, "algo": "vaprl_some_cell"}))
     assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=1", "step=100"]) == 0
-    assert all(" at step 100," in line for line in capsys.readouterr().out.splitlines())
+    lines = capsys.readouterr().out.splitlines()
+    assert all(line.startswith("sawyer_door/vaprl_some_cell seed") and " at step 100," in line for line in lines)
     # the wrapper keeps rho0's door angle and puts the hand at the pose
     from harness.envs import make_eval_env
 
@@ -552,4 +559,6 @@ def test_start_pose_probe_rolls_each_member_from_both_starts(tmp_path, capsys):
     assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "episodes=x"]) == 2
     assert capsys.readouterr().err.startswith("error: episodes and step must be")
     assert probe.main([str(tmp_path / "adhoc" / "sawyer_door" / "vaprl"), "step=300"]) == 2
-    assert capsys.readouterr().err.startswith("error: give a cell directory with checkpoints/seeds=*/checkpoint-300.pt")
+    err = capsys.readouterr().err
+    assert err.startswith("error: give a cell directory with checkpoints/seeds=*/checkpoint-300.pt")
+    assert err.rstrip().endswith("it keeps checkpoint-100.pt, checkpoint-200.pt)")

@@ -195,6 +195,29 @@ def _comparable(df: pd.DataFrame) -> pd.DataFrame:
     return df.sort_values(["seed", "step", "metric"]).reset_index(drop=True)[["seed", "step", "metric", "value"]]
 
 
+def test_keep_every_keeps_earlier_checkpoints_and_restores_one_lost_to_a_kill(tmp_path):
+    """keep_every=500: the checkpoints at 500 and 1000 stay beside checkpoint.pt, each holding its own step. A run
+    stopped between writing the 500 checkpoint and keeping it (simulated: the kept file removed) keeps it on resume;
+    keep_every=0 keeps nothing extra."""
+    import torch
+
+    def kept(spec):
+        return sorted(p.name for p in spec.checkpoint_path().parent.iterdir())
+
+    spec = _spec(tmp_path, eval_every=250, checkpoint_every=250, keep_every=500)
+    train(spec, _algo(spec.seeds), should_stop=lambda: True)  # stops after its first evaluation past step 0: 250
+    train(spec, _algo(spec.seeds), should_stop=lambda: True)  # 500: checkpoint, then kept
+    assert kept(spec) == ["checkpoint-500.pt", "checkpoint.pt"]
+    (spec.checkpoint_path().parent / "checkpoint-500.pt").unlink()
+    train(spec, _algo(spec.seeds))
+    assert kept(spec) == ["checkpoint-1000.pt", "checkpoint-500.pt", "checkpoint.pt"]  # no temporary file left
+    for name, step in (("checkpoint-500.pt", 500), ("checkpoint-1000.pt", 1000), ("checkpoint.pt", 1000)):
+        assert torch.load(spec.checkpoint_path().parent / name, weights_only=False)["step"] == step
+    plain = _spec(tmp_path / "plain", eval_every=250, checkpoint_every=250)
+    train(plain, _algo(plain.seeds))
+    assert kept(plain) == ["checkpoint.pt"]
+
+
 @requires_data
 def test_resume_after_sigkill_equals_uninterrupted_run(tmp_path):
     ref = _harness(RESUME_ARGS, tmp_path / "ref")
