@@ -84,6 +84,8 @@ class VaPRLConfig(GCConfig):
                                          "state as its goal, cut at its first success (the original code's "
                                          "relabel_offline_data)")
     use_minimum: bool = setting(True, "V = min(V(s_now -> c), V(c -> g*)) (use_minimum)")
+    exclude_solved: bool = setting(False, "never pick a candidate that already meets g*'s success test (not in the "
+                                          "original; on sawyer_door such subgoals are reached without moving)")
     kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
     v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
                                 "reward_scale x (1 if success ends the phase, else (1 - gamma^H) / (1 - gamma), "
@@ -143,18 +145,21 @@ def subgoal_candidates(forward, reverse, state_dim: int) -> tuple[np.ndarray, np
     return states.astype(np.float32), np.concatenate([pos_f, len_b - pos_b])
 
 
-def choose_subgoal(values: np.ndarray, distance: np.ndarray, eps: float) -> int:
+def choose_subgoal(values: np.ndarray, distance: np.ndarray, eps: float, allowed: np.ndarray | None = None) -> int:
     """``nearest_feasible``: the feasible (value >= eps) candidate with the smallest distance; if none, the largest
-    value."""
-    feasible = values >= eps
+    value; only among ``allowed`` candidates (all if None)."""
+    allowed = np.ones(len(values), dtype=bool) if allowed is None else allowed
+    feasible = (values >= eps) & allowed
     if not feasible.any():
-        return int(np.argmax(values))
-    return int(np.argmin(np.where(feasible, distance, np.iinfo(np.int64).max)))
+        return int(np.argmax(np.where(allowed, values, -np.inf)))
+    return int(np.argmin(np.where(feasible, distance, np.inf)))
 
 
-def lagrangian_subgoal(values: np.ndarray, distance: np.ndarray, lam: float) -> int:
-    """``lagrangian``: argmin over candidates of distance - lambda * value (ties: the first)."""
-    return int(np.argmin(distance - lam * values))
+def lagrangian_subgoal(values: np.ndarray, distance: np.ndarray, lam: float, allowed: np.ndarray | None = None) -> int:
+    """``lagrangian``: argmin over candidates (``allowed`` ones; all if None) of distance - lambda * value (ties: the
+    first)."""
+    objective = distance - lam * values
+    return int(np.argmin(objective if allowed is None else np.where(allowed, objective, np.inf)))
 
 
 def final_state_relabel(phase: np.ndarray, state_dim: int, act_dim: int, is_success) -> dict[str, np.ndarray]:
@@ -270,12 +275,14 @@ class VaPRL(GoalConditioned):
             self._draw_task_goals(bwd)  # the backward subgoal serves the next forward phase's goal
             cands, l2, time = self.current_candidates(bwd)
             values = self.candidate_values(cands, bwd)
+            allowed = ~self.solved(cands) if self.cfg.exclude_solved else np.ones(values.shape, dtype=bool)
+            allowed[~allowed.any(axis=1)] = True  # every candidate solved: the rule as without the option
             for i in np.flatnonzero(bwd):
                 if self.cfg.curriculum == "lagrangian":
-                    k = lagrangian_subgoal(values[i], l2[i], self.lagrange.value[i])
+                    k = lagrangian_subgoal(values[i], l2[i], self.lagrange.value[i], allowed[i])
                     self.lagrange.record(i, values[i, k])
                 else:
-                    k = choose_subgoal(values[i], time[i], self.threshold)
+                    k = choose_subgoal(values[i], time[i], self.threshold, allowed[i])
                 self.subgoal_index[i] = k
                 out[i] = cands[i, k]
                 self.log.add_host("curriculum/", {"subgoal_value": values[:, k], "subgoal_l2_distance":
@@ -305,6 +312,11 @@ class VaPRL(GoalConditioned):
             v = policy_value(self.sac.critic, self.sac.actor, obs_t, self.sac_value_gens, self.task.act_dim, mask,
                              self.cfg.value_actions)
         return v.cpu().numpy()
+
+    def solved(self, cands: np.ndarray) -> np.ndarray:
+        """(E, N): whether each member's candidate already meets the success test of its task goal g*."""
+        return np.asarray(self.task.is_success(np.concatenate(
+            [cands, np.broadcast_to(self.task_goal[:, None], cands.shape)], axis=2)), dtype=bool)
 
     def candidate_values(self, cands: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """V(c, g*) for each member's candidates ``cands`` (E, N, state_dim) and task goal: (E, N); with

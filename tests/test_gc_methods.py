@@ -169,6 +169,9 @@ def test_choose_subgoal_rule():
     assert choose_subgoal(values, distance, 5.0) == 3  # feasible {0, 2, 3}: nearest to rho0
     assert choose_subgoal(values, distance, 8.0) == 0
     assert choose_subgoal(values, distance, 9.5) == 0  # none feasible: largest value
+    allowed = np.array([True, True, True, False, True])  # exclude_solved: candidate 3 meets the goal already
+    assert choose_subgoal(values, distance, 5.0, allowed) == 2
+    assert choose_subgoal(values, distance, 9.5, ~np.eye(5, dtype=bool)[0]) == 3  # the largest allowed value
 
 
 def test_candidates_and_time_index():
@@ -306,6 +309,7 @@ def test_lagrangian_rule_and_multiplier():
     values, dist = np.array([1.0, 5.0, 9.0]), np.array([0.0, 2.0, 4.0])
     assert lagrangian_subgoal(values, dist, 0.0) == 0  # lambda 0: the candidate nearest rho0
     assert lagrangian_subgoal(values, dist, 0.6) == 2  # 0-0.6, 2-3, 4-5.4: the valued one wins
+    assert lagrangian_subgoal(values, dist, 0.6, np.array([True, True, False])) == 1  # 2 excluded: 2-3 < 0-0.6
     lam = LagrangeMultiplier(2, lr=0.01, upper=0.05)
     for _ in range(10):
         lam.record(0, 1.0)  # below the threshold 5: lambda grows, by ~lr per step (Adam), up to the clip
@@ -407,6 +411,22 @@ def test_phase_start_diagnostics_flag_phases_that_begin_at_their_goal():
     m = v.metrics()
     assert m["phase/backward_starts_at_goal"][0] == 1.0 and m["phase/backward_start_distance"][0] == 0.0
     assert m["phase/backward_start_distance"][1] > 0.0
+
+
+def test_vaprl_exclude_solved_never_picks_a_subgoal_that_already_meets_the_goal():
+    """exclude_solved on sawyer_door: with values that make the shut-door candidates (handle within 0.02 of g*'s) the
+    Lagrangian rule's pick, as in the 500k door run, the option picks a candidate with the door open instead."""
+    picks = {}
+    for exclude in (False, True):
+        v = _make(VaPRL, VaPRLConfig, seeds=(0,), env="sawyer_door", exclude_solved=exclude)
+        v.task_goal[0] = get_spec("sawyer_door").goal_states[0]
+        solved = v.solved(v.candidates[None])[0]
+        assert 0 < solved.sum() < len(solved)  # the demos hold shut-door states and others
+        v.candidate_values = lambda cands, mask, s=solved: np.where(s, 10.0, 0.0)[None]
+        v.lagrange.value[0] = 1.0  # value outweighs distance (< 1.5 between any two candidates)
+        v.direction[0] = BACKWARD
+        picks[exclude] = v.phase_goals(np.ones(1, bool))[0]
+        assert v.solved(picks[exclude][None, None])[0, 0] == (not exclude)
 
 
 def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
