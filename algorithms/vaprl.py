@@ -148,10 +148,11 @@ def subgoal_candidates(forward, reverse, state_dim: int) -> tuple[np.ndarray, np
 def choose_subgoal(values: np.ndarray, distance: np.ndarray, eps: float, allowed: np.ndarray | None = None) -> int:
     """``nearest_feasible``: the feasible (value >= eps) candidate with the smallest distance; if none, the largest
     value; only among ``allowed`` candidates (all if None)."""
-    allowed = np.ones(len(values), dtype=bool) if allowed is None else allowed
-    feasible = (values >= eps) & allowed
+    if allowed is not None:
+        values = np.where(allowed, values, -np.inf)  # never feasible, never the largest
+    feasible = values >= eps
     if not feasible.any():
-        return int(np.argmax(np.where(allowed, values, -np.inf)))
+        return int(np.argmax(values))
     return int(np.argmin(np.where(feasible, distance, np.inf)))
 
 
@@ -275,8 +276,9 @@ class VaPRL(GoalConditioned):
             self._draw_task_goals(bwd)  # the backward subgoal serves the next forward phase's goal
             cands, l2, time = self.current_candidates(bwd)
             values = self.candidate_values(cands, bwd)
-            allowed = ~self.solved(cands) if self.cfg.exclude_solved else np.ones(values.shape, dtype=bool)
-            allowed[~allowed.any(axis=1)] = True  # every candidate solved: the rule as without the option
+            allowed = [None] * self.E  # exclude_solved: only candidates not meeting g*'s test (all, if none is left)
+            if self.cfg.exclude_solved:
+                allowed = [a if a.any() else None for a in ~self.solved(cands)]
             for i in np.flatnonzero(bwd):
                 if self.cfg.curriculum == "lagrangian":
                     k = lagrangian_subgoal(values[i], l2[i], self.lagrange.value[i], allowed[i])
