@@ -141,8 +141,8 @@ class GoalConditioned(Algorithm):
         self.sac = SAC(O, A, seeds, cfg.sac(), device)
         self.buffer = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=Stream.GC_REPLAY,
                                           name="replay buffer")
-        for d in (demos.forward, demos.reverse):
-            self.buffer.add_demo(**demo_arrays(d))
+        for rows in self.demo_rows(demos):
+            self.buffer.add_demo(**rows)
         self.goal_rngs = member_rngs(seeds, Stream.GC_GOALS)
         self.warmup_rngs = member_rngs(seeds, Stream.GC_WARMUP)
         self.direction = np.zeros(E, dtype=np.int64)
@@ -190,6 +190,10 @@ class GoalConditioned(Algorithm):
         self.phase_steps[mask] = 0
         self.phase_hit[mask] = False
         self._begin_phase(obs, mask)
+
+    def demo_rows(self, demos: DemoSet) -> list[dict[str, np.ndarray]]:
+        """The demos as ``add_demo`` keyword arrays (one call each): as given, judged by EARL's success test."""
+        return [demo_arrays(d) for d in (demos.forward, demos.reverse)]
 
     def _begin_phase(self, obs: np.ndarray, mask: np.ndarray) -> None:
         self.phase_obs = obs  # the state each new phase starts from (read by goal hooks)

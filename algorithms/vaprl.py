@@ -39,7 +39,7 @@ start of every backward phase.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -86,6 +86,9 @@ class VaPRLConfig(GCConfig):
     use_minimum: bool = setting(True, "V = min(V(s_now -> c), V(c -> g*)) (use_minimum)")
     exclude_solved: bool = setting(False, "never pick a candidate that already meets g*'s success test (not in the "
                                           "original; on sawyer_door such subgoals are reached without moving)")
+    goal_coords: str = setting("", "state coordinates on which the agent judges reaching any goal (relabelled, subgoal, "
+                                   "g*), comma-separated, e.g. 0,1,2,4,5,6; empty: the task's success coordinates")
+    goal_threshold: float = setting(0.0, "L2 threshold of that judgement; 0: the task's success threshold", ge=0)
     kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
     v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
                                 "reward_scale x (1 if success ends the phase, else (1 - gamma^H) / (1 - gamma), "
@@ -99,6 +102,7 @@ class VaPRLConfig(GCConfig):
         super().validate()
         if self.candidates == "replay" and self.curriculum != "lagrangian":
             raise ValueError("candidates=replay needs curriculum=lagrangian (replay states have no demo time index)")
+        parse_coords(self.goal_coords)
 
 
 @dataclass
@@ -163,17 +167,45 @@ def lagrangian_subgoal(values: np.ndarray, distance: np.ndarray, lam: float, all
     return int(np.argmin(objective if allowed is None else np.where(allowed, objective, np.inf)))
 
 
+def parse_coords(text: str) -> tuple[int, ...]:
+    """``goal_coords``: "0,1,2" -> (0, 1, 2), "" -> (); anything but distinct non-negative integers -> ValueError."""
+    parts = [p.strip() for p in str(text).split(",") if p.strip()]
+    if not all(p.isdigit() for p in parts) or len(set(map(int, parts))) != len(parts):
+        raise ValueError(f"goal_coords={text!r} is not allowed: must be distinct non-negative integers, comma-separated")
+    return tuple(int(p) for p in parts)
+
+
+def goal_test(task: Task, cfg: VaPRLConfig) -> Task:
+    """The task as the agent judges reaching its goals (rewards, terminals, phase ends, relabelling, solved candidates,
+    the demos). By default EARL's test: ``task`` itself. ``goal_coords`` / ``goal_threshold`` swap in another, e.g.
+    VaPRL's own door env's ``is_successful`` (hand and handle positions, L2 <= 0.2: ``goal_coords=0,1,2,4,5,6
+    goal_threshold=0.2`` on EARL's door state). The env, its success signal and the deployed evaluation keep EARL's."""
+    coords = parse_coords(cfg.goal_coords)
+    if not coords and not cfg.goal_threshold:
+        return task
+    if any(i >= task.state_dim for i in coords):
+        raise ValueError(f"goal_coords={cfg.goal_coords!r} is not allowed: {task.name}'s state has {task.state_dim} "
+                         f"coordinates (0-{task.state_dim - 1})")
+    return replace(task, success_idx=coords or tuple(task.success_idx),
+                   success_threshold=cfg.goal_threshold or task.success_threshold)
+
+
+def cut_at_success(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray, is_success) -> dict[str, np.ndarray]:
+    """``add_demo`` keyword arrays of one trajectory cut after its first transition that succeeds (terminal, reward 1
+    there); without one, the whole trajectory, ending truncated."""
+    success = np.asarray(is_success(next_obs), dtype=bool)
+    end = int(np.argmax(success)) + 1 if success.any() else len(obs)
+    return {"observations": obs[:end], "actions": actions[:end], "rewards": success[:end].astype(np.float32),
+            "next_observations": next_obs[:end], "terminals": success[:end].copy()}
+
+
 def final_state_relabel(phase: np.ndarray, state_dim: int, act_dim: int, is_success) -> dict[str, np.ndarray]:
     """One hindsight copy of a phase's rows [s, a, s'] (T, .) with goal = its final achieved state s'_T, cut at the
     first transition that succeeds for that goal (terminal there), as the original ``relabel_function`` does."""
     s, a, s2 = phase[:, :state_dim], phase[:, state_dim : state_dim + act_dim], phase[:, state_dim + act_dim :]
     goal = np.broadcast_to(s2[-1], s.shape)
-    next_obs = np.concatenate([s2, goal], axis=1).astype(np.float32)
-    success = np.asarray(is_success(next_obs), dtype=bool)
-    end = int(np.argmax(success)) + 1 if success.any() else len(phase)
-    terminal = success[:end].copy()
-    return {"observations": np.concatenate([s, goal], axis=1)[:end].astype(np.float32), "actions": a[:end],
-            "rewards": success[:end].astype(np.float32), "next_observations": next_obs[:end], "terminals": terminal}
+    return cut_at_success(np.concatenate([s, goal], axis=1).astype(np.float32), a,
+                          np.concatenate([s2, goal], axis=1).astype(np.float32), is_success)
 
 
 def demo_prefix_relabel(demos, state_dim: int, act_dim: int, is_success) -> dict[str, np.ndarray]:
@@ -236,6 +268,8 @@ class VaPRL(GoalConditioned):
     Config = VaPRLConfig
 
     def __init__(self, task: Task, demos: DemoSet, cfg: VaPRLConfig, seeds: list[int], device: torch.device):
+        self.earl_task = task
+        task = goal_test(task, cfg)
         super().__init__(task, demos, cfg, seeds, device)
         self.candidates, self.time_distance = subgoal_candidates(demos.forward, demos.reverse, task.state_dim)
         self.rho0 = np.asarray(task.initial_states, dtype=np.float32).mean(axis=0)
@@ -251,6 +285,19 @@ class VaPRL(GoalConditioned):
         self.task_goal = np.zeros_like(self.goal)  # g* of the current / next forward phase
         self.subgoal_index = np.full(self.E, -1)  # last chosen candidate (diagnostic)
         self._phase: list[list[np.ndarray]] = [[] for _ in range(self.E)]  # [s, a, s'] rows of the open phase
+
+    def demo_rows(self, demos: DemoSet) -> list[dict[str, np.ndarray]]:
+        """Under EARL's test the demos as given (each trajectory ends at its first success); under another goal test
+        each trajectory re-judged by it (:func:`cut_at_success`), one ``add_demo`` call per trajectory."""
+        if self.task is self.earl_task:
+            return super().demo_rows(demos)
+        rows = []
+        for d in (demos.forward, demos.reverse):
+            starts, segment = demo_segments(d.terminals)
+            for a, b in zip(starts, np.append(starts[1:], len(segment))):
+                rows.append(cut_at_success(d.observations[a:b], d.actions[a:b], d.next_observations[a:b],
+                                           self.task.is_success))
+        return rows
 
     @property
     def threshold(self) -> float:

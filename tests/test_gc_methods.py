@@ -34,6 +34,7 @@ from algorithms.vaprl import (
     demo_prefix_relabel,
     demo_time_index,
     final_state_relabel,
+    goal_test,
     lagrangian_subgoal,
     subgoal_candidates,
     value_ceiling,
@@ -427,6 +428,39 @@ def test_vaprl_exclude_solved_never_picks_a_subgoal_that_already_meets_the_goal(
         v.direction[0] = BACKWARD
         picks[exclude] = v.phase_goals(np.ones(1, bool))[0]
         assert v.solved(picks[exclude][None, None])[0, 0] == (not exclude)
+
+
+def test_vaprl_goal_test_judges_goals_on_other_coordinates_and_rejudges_the_demos():
+    """goal_coords/goal_threshold (VaPRL's own door test: hand and handle, L2 <= 0.2): the agent's rewards, phase ends
+    and demos follow it; the env's spec (EARL's handle test at 0.02) is untouched; bad coordinates get one clear line."""
+    spec = get_spec("sawyer_door")
+    assert goal_test(spec, VaPRLConfig()) is spec  # the default: EARL's test
+    test = goal_test(spec, VaPRLConfig(goal_coords="0,1,2,4,5,6", goal_threshold=0.2))
+    assert test.success_idx == (0, 1, 2, 4, 5, 6) and test.success_threshold == 0.2
+    assert spec.success_idx == (4, 5, 6) and spec.success_threshold == 0.02
+    obs = np.zeros((3, 14), np.float32)
+    obs[1, 4] = 0.05  # handle 0.05 from the goal's: fails EARL's test, passes VaPRL's
+    obs[2, 0] = 0.5  # hand 0.5 from the goal's, handle at it: passes EARL's, fails VaPRL's
+    np.testing.assert_array_equal(spec.is_success(obs), [True, False, True])
+    np.testing.assert_array_equal(test.is_success(obs), [True, True, False])
+    for bad, match in (("0,1,x", "distinct non-negative integers"), ("1,1", "distinct"), ("0,7", "has 7 coordinates")):
+        with pytest.raises(ValueError, match=match):
+            goal_test(spec, VaPRLConfig(goal_coords=bad))
+    demos = _demos("sawyer_door")
+    v = _make(VaPRL, VaPRLConfig, env="sawyer_door", goal_coords="0,1,2,4,5,6", goal_threshold=0.2)
+    assert v.task.success_idx == (0, 1, 2, 4, 5, 6)
+    rows = v.demo_rows(demos)
+    n_traj = sum(int(np.asarray(d.terminals).sum()) for d in (demos.forward, demos.reverse))
+    assert len(rows) == n_traj  # one add_demo call per trajectory
+    for r in rows:  # each ends at its first success under the agent's test (terminal, reward 1), or truncated
+        ok = test.is_success(r["next_observations"])
+        assert not ok[:-1].any() and r["terminals"][-1] == ok[-1] == bool(r["rewards"][-1])
+        assert not r["terminals"][:-1].any()
+    kept = sum(len(r["terminals"]) for r in rows)
+    assert 0 < kept <= len(demos.forward.terminals) + len(demos.reverse.terminals)
+    assert v.buffer.size[0] == kept + len(rows)  # each segment: its FIRST step and its transitions
+    default = _make(VaPRL, VaPRLConfig, env="sawyer_door")
+    assert default.task is spec or default.task == spec
 
 
 def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
