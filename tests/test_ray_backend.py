@@ -74,10 +74,13 @@ def test_ctrl_c_cancels_and_exits_130(tmp_path):
     words = ["steps=100000" if w.startswith("steps=") else w for w in SMALL]
     p = subprocess.Popen([sys.executable, "-m", "harness.cli", "run", *words, "backend=ray",
                           f"results={tmp_path}"], env=ENV, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    deadline = time.time() + 120
+    deadline = time.time() + 600  # Ray's start and the first evaluation take ~80 s on a loaded 2-core machine
     while not list(tmp_path.rglob("evals.parquet")) and time.time() < deadline:
         assert p.poll() is None, p.communicate()[0]
         time.sleep(0.1)
+    if not list(tmp_path.rglob("evals.parquet")):  # fail on what happened, not on a missing status.json later
+        p.kill()
+        pytest.fail("no evaluation written within 600 s:\n" + p.communicate()[0])
     p.send_signal(signal.SIGINT)
     out, _ = p.communicate(timeout=60)
     assert p.returncode == 130, out
