@@ -54,6 +54,7 @@ RELABEL = ("final", "final_failed", "future_demo", "none")
 CURRICULUM = ("lagrangian", "nearest_feasible")
 CANDIDATES = ("demos", "replay")
 VALUE_CRITIC = ("sac", "separate")
+TASK_GOAL_TEST = ("agent", "task")
 ADAM_BETAS, ADAM_EPS = (0.9, 0.999), 1e-8  # TF1 AdamOptimizer defaults (the multiplier's optimizer)
 
 
@@ -89,6 +90,9 @@ class VaPRLConfig(GCConfig):
     goal_coords: str = setting("", "state coordinates on which the agent judges reaching any goal (relabelled, subgoal, "
                                    "g*), comma-separated, e.g. 0,1,2,4,5,6; empty: the task's success coordinates")
     goal_threshold: float = setting(0.0, "L2 threshold of that judgement; 0: the task's success threshold", ge=0)
+    task_goal_test: str = setting("agent", "which test judges reaching g* (the task's goal states) when goal_coords / "
+                                           "goal_threshold set another: agent = that test, as every other goal; task = "
+                                           "the task's own (EARL's)", choices=TASK_GOAL_TEST)
     kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
     v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
                                 "reward_scale x (1 if success ends the phase, else (1 - gamma^H) / (1 - gamma), "
@@ -179,15 +183,51 @@ def goal_test(task: Task, cfg: VaPRLConfig) -> Task:
     """The task as the agent judges reaching its goals (rewards, terminals, phase ends, relabelling, solved candidates,
     the demos). By default EARL's test: ``task`` itself. ``goal_coords`` / ``goal_threshold`` swap in another, e.g.
     VaPRL's own door env's ``is_successful`` (hand and handle positions, L2 <= 0.2: ``goal_coords=0,1,2,4,5,6
-    goal_threshold=0.2`` on EARL's door state). The env, its success signal and the deployed evaluation keep EARL's."""
+    goal_threshold=0.2`` on EARL's door state); ``task_goal_test=task`` keeps EARL's test for g* alone (EARL's door goal
+    puts the hand at the handle's own coordinates, 0.075-0.086 from where every forward demo holds the shut door, so
+    no hand-and-handle test both lets the demos reach g* and demands the shut door). The env, its success signal and
+    the deployed evaluation keep EARL's."""
     coords = parse_coords(cfg.goal_coords)
     if not coords and not cfg.goal_threshold:
         return task
     if any(i >= task.state_dim for i in coords):
         raise ValueError(f"goal_coords={cfg.goal_coords!r} is not allowed: {task.name}'s state has {task.state_dim} "
                          f"coordinates (0-{task.state_dim - 1})")
-    return replace(task, success_idx=coords or tuple(task.success_idx),
-                   success_threshold=cfg.goal_threshold or task.success_threshold)
+    other = replace(task, success_idx=coords or tuple(task.success_idx),
+                    success_threshold=cfg.goal_threshold or task.success_threshold)
+    return TaskGoalKeepsItsTest(task, other) if cfg.task_goal_test == "task" else other
+
+
+class TaskGoalKeepsItsTest:
+    """The agent's goal test for subgoals and relabelled goals, the task's own for g*: a goal equal to one of the task's
+    goal states is judged by ``task`` (EARL's test), any other by ``other``. Distances are in units of each test's
+    threshold (success: distance <= 1), so one comparison serves both. Everything else is the task's."""
+
+    success_threshold = 1.0
+
+    def __init__(self, task: Task, other: Task):
+        self.task, self.other = task, other
+        self._goal_states = np.asarray(task.goal_states, dtype=np.float32)
+
+    def __getattr__(self, name: str):  # name, dims, horizons, initial and goal states: the task's
+        if name.startswith("__") or name in ("task", "other"):  # copy/pickle probe before __init__ ran
+            raise AttributeError(name)
+        return getattr(self.task, name)
+
+    def is_task_goal(self, obs: np.ndarray) -> np.ndarray:
+        """Whether each observation's goal part is one of the task's goal states (float32, as goals are stored)."""
+        goal = np.asarray(obs, dtype=np.float32)[..., None, self.task.state_dim :]
+        return (np.abs(goal - self._goal_states).max(axis=-1) <= 1e-6).any(axis=-1)
+
+    def goal_distance(self, obs: np.ndarray) -> np.ndarray:
+        return np.where(self.is_task_goal(obs), self.task.goal_distance(obs) / self.task.success_threshold,
+                        self.other.goal_distance(obs) / self.other.success_threshold)
+
+    def is_success(self, obs: np.ndarray) -> np.ndarray:
+        return self.goal_distance(obs) <= 1.0
+
+    def compute_reward(self, obs: np.ndarray) -> np.ndarray:
+        return np.asarray(self.is_success(obs), dtype=np.float64)
 
 
 def cut_at_success(obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray, is_success) -> dict[str, np.ndarray]:

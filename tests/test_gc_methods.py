@@ -463,6 +463,41 @@ def test_vaprl_goal_test_judges_goals_on_other_coordinates_and_rejudges_the_demo
     assert default.task is spec  # EARL's test: the spec itself, demos as given
 
 
+def test_vaprl_task_goal_keeps_its_test_while_other_goals_take_the_agents():
+    """task_goal_test=task: subgoals and relabelled goals are judged on hand and handle (0.02), g* by EARL's handle
+    test alone (EARL's door goal puts the hand at the handle's coordinates, where no demo's hand can be)."""
+    spec = get_spec("sawyer_door")
+    cfg = dict(goal_coords="0,1,2,4,5,6", goal_threshold=0.02, task_goal_test="task")
+    test = goal_test(spec, VaPRLConfig(**cfg))
+    assert test.state_dim == 7 and test.obs_dim == 14 and test.goal_states is spec.goal_states
+    g_star, other = spec.goal_states[0].astype(np.float32), np.full(7, 0.3, np.float32)
+    obs = np.zeros((4, 14), np.float32)
+    obs[:2, 7:], obs[2:, 7:] = g_star, other
+    obs[:, :7] = obs[:, 7:]
+    obs[[0, 2], 0] += 0.5  # hand 0.5 off, handle at its goal
+    obs[[1, 3], 4] += 0.05  # handle 0.05 off, hand at its goal
+    np.testing.assert_array_equal(test.is_task_goal(obs), [True, True, False, False])
+    # g*: EARL's test (hand free, handle within 0.02); another goal: hand and handle within 0.02
+    np.testing.assert_array_equal(test.is_success(obs), [True, False, False, False])
+    np.testing.assert_allclose(test.goal_distance(obs), [0.0, 2.5, 25.0, 2.5], rtol=1e-5)  # in threshold units
+    np.testing.assert_array_equal(test.compute_reward(obs), [1.0, 0.0, 0.0, 0.0])
+    assert goal_test(spec, VaPRLConfig(goal_coords="0,1,2,4,5,6", goal_threshold=0.02)).success_idx == (0, 1, 2, 4, 5, 6)
+    with pytest.raises(ValueError, match="task_goal_test=.both. is not allowed"):
+        VaPRLConfig(task_goal_test="both").validate()
+    v = _make(VaPRL, VaPRLConfig, env="sawyer_door", **cfg)
+    demos = _demos("sawyer_door")
+    rows = v.demo_rows(demos)
+    is_forward = [bool(test.is_task_goal(r["observations"][:1])[0]) for r in rows]
+    forward = [r for r, f in zip(rows, is_forward) if f]
+    assert len(forward) == int(np.asarray(demos.forward.terminals).sum())  # forward demos: as EARL judges them
+    assert sum(len(r["terminals"]) for r in forward) == len(demos.forward.terminals)
+    assert all(r["terminals"][-1] and r["rewards"][-1] == 1 for r in forward)
+    # reverse demos (goal rho0): they stop once the handle is back, the hand 0.11 from rho0's: never a success
+    assert all(not r["terminals"].any() for r, f in zip(rows, is_forward) if not f)
+    v.task_goal[0] = g_star  # the solved test of candidates stays EARL's: shut-door demo states meet it
+    assert v.solved(v.candidates[None]).any()
+
+
 def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
     """candidates=replay (the original code's num_reset_candidates): each choice draws fresh states from the member's
     own replay buffer; the Lagrangian rule then runs on their L2 distance to mean(rho0)."""

@@ -84,8 +84,8 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
-    # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 21 cells (two of them: two windows)
-    assert n == {"reproduction": 10, "vaprl_ablation": 23}[suite]
+    # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 22 cells (two of them: two windows)
+    assert n == {"reproduction": 10, "vaprl_ablation": 24}[suite]
 
 
 @requires_data
@@ -205,7 +205,7 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
-    assert not at.exception and len(at.get("vega_lite_chart")) == 21  # the ablation: 21 cells
+    assert not at.exception and len(at.get("vega_lite_chart")) == 22  # the ablation: 22 cells
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
