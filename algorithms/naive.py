@@ -57,6 +57,13 @@ class Naive(Algorithm):
         self._action = np.zeros((E, A), dtype=np.float32)
         self.timers = Timers(device)
         self.log = TrainLog(E, device)
+        # The critic's Q at each (pseudo-)episode's first step beside the discounted, scaled task return the episode
+        # then collected (episode/q_start, episode/return): with no bootstrap at the episode's end, Q(s0, a0)'s fixed
+        # point is that return's expectation plus the entropy bonus (< 0 once the entropy is below zero), so a
+        # q_start above the return is the critic overestimating. Task reward only (GAIL learns its own).
+        self.q_start = np.full(E, np.nan)
+        self.ret, self.ret_discount = np.zeros(E), np.ones(E)
+        self._log_return = type(self).reward is Naive.reward
 
     # -- hooks for learned rewards (GAIL) ------------------------------------------------------------------------
     def reward(self, batch: dict[str, torch.Tensor]) -> torch.Tensor | None:
@@ -81,7 +88,11 @@ class Naive(Algorithm):
                 self._action = np.stack([r.uniform(-1.0, 1.0, self.task.act_dim) for r in self.rngs]).astype(np.float32)
             else:
                 o = torch.as_tensor(with_goal(obs, self.goal, self.task.state_dim), device=self.device)
-                self._action = self.agent.act(o).cpu().numpy()
+                action = self.agent.act(o)
+                self._action = action.cpu().numpy()
+                starts = self.episode_steps == 0
+                if self._log_return and not seeding and starts.any():
+                    self.q_start[starts] = self.agent.q_value(o, action).cpu().numpy()[starts]
         if not seeding:
             with self.timers("buffer"):
                 batch = self.buf.sample(cfg.batch_size)
@@ -91,7 +102,9 @@ class Naive(Algorithm):
         return self._action
 
     def metrics(self) -> dict[str, np.ndarray]:
-        """sac/*: the agent's update diagnostics; episode/end_success: share of (pseudo-)episodes ending in success."""
+        """sac/*: the agent's update diagnostics; episode/end_success: share of (pseudo-)episodes ending in success;
+        episode/q_start and episode/return: mean Q(s0, a0) and discounted scaled task return of the episodes that
+        ended (those started after the seed phase)."""
         return self.log.pop()
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
@@ -105,6 +118,7 @@ class Naive(Algorithm):
         with self.timers("buffer"):
             self.buf.add(self._action, success.astype(np.float32), no, terminal, truncated)
         self.log.add_host("episode/", {"end_success": terminal}, cut | hard_reset)
+        self._log_q_and_return(success, cut | hard_reset)
         self.step += 1
         if self.episodic:
             return cut  # the loop resets these envs and calls on_reset
@@ -117,16 +131,30 @@ class Naive(Algorithm):
             self.episode_steps[new] = 0
         return np.zeros(self.E, dtype=bool)
 
+    def _log_q_and_return(self, reward: np.ndarray, ended: np.ndarray) -> None:
+        if not self._log_return:
+            return
+        sac = self.agent.cfg
+        self.ret += self.ret_discount * sac.reward_scale * reward
+        self.ret_discount *= sac.gamma
+        logged = ended & ~np.isnan(self.q_start)
+        if logged.any():
+            self.log.add_host("episode/", {"q_start": np.nan_to_num(self.q_start), "return": self.ret}, logged)
+        self.q_start[ended], self.ret[ended], self.ret_discount[ended] = np.nan, 0.0, 1.0
+
     def eval_act(self, obs: np.ndarray) -> np.ndarray:
         return self.agent.act(torch.as_tensor(obs, device=self.device), deterministic=True).cpu().numpy()
 
     # -- checkpointing --------------------------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         return {"agent": self.agent.state_dict(), "buf": self.buf.state_dict(), "rngs": rng_states(self.rngs),
-                "goal": self.goal.copy(), "episode_steps": self.episode_steps.copy(), "step": self.step}
+                "goal": self.goal.copy(), "episode_steps": self.episode_steps.copy(), "step": self.step,
+                "q_and_return": np.stack([self.q_start, self.ret, self.ret_discount])}
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.agent.load_state_dict(state["agent"])
         self.buf.load_state_dict(state["buf"])
         load_rng_states(self.rngs, state["rngs"])
         self.goal[:], self.episode_steps[:], self.step = state["goal"], state["episode_steps"], state["step"]
+        if "q_and_return" in state:  # checkpoints before 2026-12-03 lack it: their open episodes go unlogged
+            self.q_start[:], self.ret[:], self.ret_discount[:] = state["q_and_return"]

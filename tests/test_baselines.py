@@ -156,6 +156,38 @@ def test_oracle_asks_for_a_reset_every_eval_horizon_and_on_success(demos):
     assert _last(m.buf, "terminal") and _last(m.buf, "reward") == 1.0
 
 
+def test_oracle_logs_q_at_each_episode_start_beside_the_discounted_return(demos):
+    """episode/q_start is the critic's min-Q at the first (obs, action) of an episode started after the seed phase;
+    episode/return the episode's task reward, scaled by 10 and discounted by 0.99 per step from that first step."""
+    m = _make(Oracle, OracleConfig, demos, seed_steps=3)
+    o, win = _obs(AWAY, SPEC.goal_states[0]), _obs(SPEC.goal_states[0], SPEC.goal_states[0])
+    calls, q_value = [], m.agent.q_value
+    m.agent.q_value = lambda obs, action: calls.append((obs.clone(), action.clone(), q := q_value(obs, action))) or q
+    m.on_reset(o, np.ones(1, bool))
+    for _ in range(3):
+        _step(m, o, o)
+    assert _step(m, o, win)[0] and not calls  # the seed-phase episode ends in success, unlogged
+    assert all(np.isnan(v).all() for k, v in m.metrics().items() if k in ("episode/q_start", "episode/return"))
+    m.on_reset(o, np.ones(1, bool))
+    action = m.act(o)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(calls[0][0].numpy(), o)
+    np.testing.assert_array_equal(calls[0][1].numpy(), action)
+    assert not m.observe(o, np.zeros(1, bool))[0]
+    _step(m, o, o)
+    assert _step(m, o, win)[0] and len(calls) == 1  # success on the episode's third step
+    logged = m.metrics()
+    assert logged["episode/q_start"][0] == pytest.approx(calls[0][2].item())
+    assert logged["episode/return"][0] == pytest.approx(10 * 0.99**2)
+    m.on_reset(o, np.ones(1, bool))
+    for _ in range(SPEC.eval_horizon):  # a truncated episode without success: return 0
+        asked = _step(m, o, o)[0]
+    assert asked and len(calls) == 2 and m.metrics()["episode/return"][0] == 0.0
+    with torch.no_grad():
+        obs, act = torch.as_tensor(o), torch.as_tensor(action)
+        np.testing.assert_allclose(q_value(obs, act).numpy(), m.agent.critic(obs[:, None], act[:, None]).amin((1, 2)))
+
+
 def test_naive_cuts_pseudo_episodes_with_fresh_goals_and_never_resets(demos):
     m = _make(Naive, NaiveConfig, demos)
     o = _obs(AWAY, SPEC.goal_states[0])

@@ -164,6 +164,11 @@ class SAC:
             action = torch.tanh(mean + log_std.exp() * eps)
         return action.squeeze(1) if squeeze else action
 
+    @torch.no_grad()
+    def q_value(self, obs: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """min_j Q_j(o, a) of the online critic, (E,) for obs (E, obs_dim) and action (E, act_dim)."""
+        return self.critic(obs.unsqueeze(1), action.unsqueeze(1)).min(dim=1).values.squeeze(-1)
+
     def bootstrap_mask(self, terminal: torch.Tensor, truncated: torch.Tensor) -> torch.Tensor:
         """m = 0 after a terminal step, or a truncated one unless ``bootstrap_on_truncation``; else 1 (§2.3, §3.2)."""
         stop = terminal if self.cfg.bootstrap_on_truncation else terminal | truncated
