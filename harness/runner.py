@@ -410,6 +410,10 @@ def check_results_dirs(plan: Plan) -> None:
             _check_writable(d)
             if p.exists():
                 old = read_run_record(p)
+                if old.get("update", "default") != g.update:
+                    print(f"harness: note: {p.parent}: this run last ran with update={old.get('update', 'default')}, "
+                          f"now update={g.update}: the curve goes on equal within float rounding, not bit for bit "
+                          "(give the same update= to resume exactly)", file=sys.stderr)
                 if old.get("config_hash") == g.config_hash:
                     continue
                 same_protocol = all(old.get(k) == getattr(g, k) for k in ("eval_every", "eval_episodes", "demo_source"))

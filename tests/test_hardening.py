@@ -290,6 +290,20 @@ def test_broken_run_yaml_is_one_line_naming_the_file(tmp_path, capsys, content, 
     assert len(err) == 1 and str(f) in err[0] and says in err[0] and "delete it" in err[0]
 
 
+@requires_data
+def test_resuming_with_another_update_mode_says_so(tmp_path, capsys):
+    """A run resumed under another ``update=`` goes on within rounding, not bitwise: one note names both modes."""
+    words = ["run", "algo=naive", "env=tabletop_manipulation", "steps=200", "eval_every=200", *TINY,
+             f"results={tmp_path}", "workers=1", "update=static"]
+    assert main(words) == 0
+    capsys.readouterr()
+    assert main(words + ["--dry-run", "calibrate=false"]) == 0
+    assert "update=" not in capsys.readouterr().err
+    assert main([w for w in words if w != "update=static"] + ["--dry-run", "calibrate=false"]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "update=" in line]
+    assert len(notes) == 1 and "last ran with update=static, now update=default" in notes[0]
+
+
 def test_unwritable_results_directory_is_an_input_error(tmp_path, capsys, monkeypatch):
     real = os.access
     monkeypatch.setattr(os, "access", lambda p, mode: False if str(p) == str(tmp_path) else real(p, mode))
