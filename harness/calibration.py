@@ -46,7 +46,8 @@ def machine() -> str:
 def key(group: RunSpec, threads: int) -> str:
     return "|".join([machine(), torch.device(group.device).type, f"threads={threads}", group.algo_class, group.env,
                      f"members={len(group.seeds)}", group.config_hash]
-                    + ([f"env_workers={group.env_workers}"] if group.env_workers > 1 else []))
+                    + ([f"env_workers={group.env_workers}"] if group.env_workers > 1 else [])
+                    + ([f"update={group.update}"] if group.update != "default" else []))
 
 
 def read_cache() -> dict[str, float]:
@@ -72,6 +73,10 @@ def measure(group: RunSpec, threads: int) -> float:
     try:
         demos = DemoSet(load_demos(group.env, "forward"), load_demos(group.env, "reverse"))
         algo = cls(get_spec(group.env), demos, cfg, list(group.seeds), torch.device(group.device))
+        if group.update != "default":
+            from algorithms.core.sac import use_static_updates
+
+            use_static_updates(algo, compile=group.update == "compiled")  # compiled at the first update, untimed
         inter = Interaction(group.env, list(group.seeds), group.env_workers)
         try:
             inter.start(algo)

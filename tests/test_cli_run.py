@@ -106,6 +106,16 @@ def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypa
     assert main(args) == 0
     assert "calibrating" not in capsys.readouterr().out  # cached
     assert not (tmp_path / "r").exists()
+    # another update mode is another speed: measured on its own, with the agent switched to it
+    from algorithms.core.sac import SAC
+
+    switched = []
+    real = SAC.use_static_update
+    monkeypatch.setattr(SAC, "use_static_update", lambda self, compile=False: (switched.append(compile),
+                                                                                real(self, compile))[1])
+    assert main([a.replace("naive,oracle", "naive") for a in args] + ["update=static"]) == 0
+    assert capsys.readouterr().out.count("calibrating") == 1 and switched == [False]
+    assert len(calibration.read_cache()) == 3
     # longest first onto the least loaded worker: 3 jobs of 100 s, 60 s, 50 s on 2 workers -> 110 s
     assert calibration.estimate([(1000, 10.0), (600, 10.0), (500, 10.0)], 2) == pytest.approx(110.0)
     assert calibration.estimate([(1000, 10.0), (0, 1.0)], 1) == pytest.approx(100.0)
