@@ -24,8 +24,8 @@ Deviations (documented):
   optimizer cannot share without changing algorithms/core.
 - The success critic is updated before the SAC update on the same batch (RISC: Q-critic, success
   critic, actor, ...): with separate networks this is the same computation (same actor state).
-- The switcher also runs during the warm-up (on the untrained success critic), as it is part of the
-  controller rather than of the policy.
+Not a deviation: the switcher also runs during the warm-up (on the untrained success critic), as in RISC's code,
+whose agent asks ``should_switch`` at every training step, warm-up included.
 Per-env values (14.4) live in suites/algorithms/risc.yaml; the dataclass defaults are tabletop's.
 """
 
