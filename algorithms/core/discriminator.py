@@ -7,6 +7,11 @@ random permutation of the combined 800-batch, and BOTH inputs and soft labels mi
 x = lambda * x_i + (1 - lambda) * x_perm(i), y = lambda * y_i + (1 - lambda) * y_perm(i).
 [MC] applies ``BCELoss`` to ``sigmoid(logit)``; we use ``binary_cross_entropy_with_logits`` (same value, numerically
 stable, without BCELoss's clamp of log at -100). Adam lr 3e-4 (:class:`MemberAdam`).
+
+Deviation (documented): the layers are initialised like every network here (Xavier-uniform weights, zero biases);
+[MC] never applies its ``weight_init`` to the discriminator, so it keeps ``nn.Linear``'s default (weights and biases
+U(-1/sqrt(fan_in), 1/sqrt(fan_in))). MEDAL passes its tabletop check with this initialisation (docs/reproduction.md,
+cell 1); changing it would change every MEDAL curve, so it stays.
 """
 
 from __future__ import annotations
