@@ -557,6 +557,16 @@ def tab_reproduction(root: str, sig: tuple) -> None:
     st.caption(f"A check passes when our seed-mean of the window means lies in [published min - {ladder.widen:g}, "
                f"published max + {ladder.widen:g}] (the per-seed range of the published seeds, widened); it is running "
                "until every seed has all its evaluations in the window. docs/reproduction.md explains the rule.")
+    with st.expander("What the runs cost"):
+        cost = R.ladder_cost(ladder, ours)
+        st.dataframe(cost, hide_index=True, column_config={
+            "started": st.column_config.NumberColumn("seeds started"),
+            "steps": st.column_config.NumberColumn("env steps", format="%d"),
+            "process_hours": st.column_config.NumberColumn("process-hours", format="%.1f"),
+            "steps_per_s": st.column_config.NumberColumn("steps/s per seed (median)", format="%.0f")})
+        st.caption(f"{cost['process_hours'].sum():.1f} process-hours in all: each seed's last wall_s over the seeds "
+                   "sharing its process (core-hours on a CPU with one torch thread per process); rows redone after a "
+                   "lost checkpoint count once.")
     pub, err = load_published_curves()
     if pub is None:
         st.info(f"Published curves unavailable: {err}")

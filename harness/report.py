@@ -116,8 +116,8 @@ def is_cells_suite(suite: str | None) -> bool:
 
 def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None = None) -> list[Path]:
     """For a suite with cells: ``reproduction.png``/``.pdf`` (one panel per cell, our seeds and the published ones,
-    windows shaded, verdicts) and ``reproduction.md``/``.csv`` (the table of checks); with ``doc``, that table also
-    replaces the ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
+    windows shaded, verdicts) and ``reproduction.md``/``.csv`` (the table of checks; the Markdown adds what the runs
+    cost, :func:`harness.reproduction.ladder_cost`); with ``doc``, those tables also replace the ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
     from harness import reproduction as R
     from harness.data import DataNotFoundError
     from harness.results import load_published
@@ -135,10 +135,11 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
         fig.savefig(p, dpi=150 if ext == "png" else None, bbox_inches="tight")
         written.append(p)
     t = R.ladder_table(ladder, df)
-    (out / "reproduction.md").write_text(R.table_markdown(t))
-    if doc:  # the table into the document, the figure beside it as <suite>.png
+    tables = R.table_markdown(t) + "\nWhat the runs cost (the shipped rows):\n\n" + R.cost_markdown(R.ladder_cost(ladder, df))
+    (out / "reproduction.md").write_text(tables)
+    if doc:  # the tables into the document, the figure beside it as <suite>.png
         path = Path(doc)
-        path.write_text(R.replace_doc_table(path.read_text(), suite, R.table_markdown(t)))
+        path.write_text(R.replace_doc_table(path.read_text(), suite, tables))
         fig.savefig(path.parent / f"{suite}.png", dpi=110, bbox_inches="tight")
         written += [path, path.parent / f"{suite}.png"]
     t.drop(columns=["ours_per_seed", "band"]).assign(

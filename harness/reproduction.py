@@ -163,6 +163,46 @@ def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000) -
     return pd.DataFrame(rows)
 
 
+def ladder_cost(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
+    """What each cell's runs cost, from their evaluation rows: seeds started, env steps done (summed over seeds),
+    process-hours (each seed's last ``wall_s``, divided by the seeds its process trained as members: on a CPU with one
+    torch thread per process, core-hours) and the median steps/s per seed. Only the rows that exist count: a run redone
+    from 0 after its checkpoint was lost counts once."""
+    rows = []
+    for cell in ladder.cells:
+        o = ours[(ours["suite"] == ladder.suite) & (ours["env"] == cell.env) & (ours["algo"] == cell.name)
+                 & ours["seed"].isin(cell.seeds)]
+        started, steps, hours, rates = 0, 0, 0.0, []
+        for s in cell.seeds:
+            r = o[o["seed"] == s]
+            if r.empty:
+                continue
+            started, steps = started + 1, steps + int(r["step"].max())
+            wall = r[r["metric"] == "wall_s"]
+            if len(wall):
+                last = wall.loc[wall["step"].idxmax()]
+                members = last.get("members", 1)
+                hours += float(last["value"]) / (int(members) if pd.notna(members) and members > 0 else 1) / 3600
+            rate = r.loc[(r["metric"] == "steps_per_s") & (r["step"] > 0), "value"]
+            rates += [v for v in rate if np.isfinite(v) and v > 0]
+        rows.append({"method": cell.name, "env": cell.env, "seeds": len(cell.seeds), "started": started,
+                     "steps": steps, "process_hours": hours,
+                     "steps_per_s": float(np.median(rates)) if rates else float("nan")})
+    return pd.DataFrame(rows)
+
+
+def cost_markdown(c: pd.DataFrame) -> str:
+    """:func:`ladder_cost` as a Markdown table with a total row."""
+    lines = ["| method | env | seeds started | env steps | process-hours | steps/s per seed (median) |",
+             "|---|---|---|---|---|---|"]
+    for r in c.itertuples():
+        rate = "-" if np.isnan(r.steps_per_s) else f"{r.steps_per_s:.0f}"
+        lines.append(f"| {r.method} | {r.env} | {r.started} of {r.seeds} | {r.steps:,} | {r.process_hours:.1f} | {rate} |")
+    lines.append(f"| total | | {int(c['started'].sum())} of {int(c['seeds'].sum())} | {int(c['steps'].sum()):,} | "
+                 f"{c['process_hours'].sum():.1f} | |")
+    return "\n".join(lines) + "\n"
+
+
 def _yaml_value(v) -> str:
     return str(v).lower() if isinstance(v, bool) else str(v)
 

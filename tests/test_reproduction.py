@@ -165,7 +165,8 @@ def write_ladder_results(root: Path) -> Path:
                                            ("tabletop_manipulation", "medal", 50_000, (0, 1, 2), 0.0)):
         for s in seeds:
             write_run(root, "reproduction", env, algo, s, range(0, steps + 1, 10_000),
-                      lambda step, v=value: {"deployed_success": v if step else 0.0}, status)
+                      lambda step, v=value: {"deployed_success": v if step else 0.0, "steps_per_s": 20.0,
+                                             "wall_s": step / 20}, status)
     return root
 
 
@@ -187,6 +188,12 @@ def test_ladder_table_and_report(tmp_path, capsys):
         pytest.skip(str(e))
     md = (out / "reproduction.md").read_text()
     assert "| risc | tabletop_manipulation | 0.3M | 200k-300k | 0.99 (0.96-1.00) | 1.00 (1.00, 1.00) | pass |" in md
+    # the cost: each seed's last wall_s over its process's members (3 in the fixture), env steps summed over seeds
+    assert "| risc | tabletop_manipulation | 2 of 2 | 600,000 | 2.8 | 20 |" in md  # 2 x 15,000 s / 3
+    assert "| fbrl | tabletop_manipulation | 0 of 2 | 0 | 0.0 | - |" in md
+    cost = R.ladder_cost(R.load_ladder("reproduction"), load(root)).set_index(["method", "env"])
+    assert cost.loc[("medal", "tabletop_manipulation"), "process_hours"] == pytest.approx(3 * 2_500 / 3 / 3600)
+    assert "| total | | 7 of 19 | 1,350,000 |" in md
     assert (out / "reproduction.png").stat().st_size > 10_000
     csv = pd.read_csv(out / "reproduction.csv")
     assert list(csv["status"]).count("pass") == 1 and list(csv["status"]).count("fail") == 1
@@ -203,6 +210,8 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     table = at.dataframe[0].value
     assert len(table) == 10 and set(table["verdict"]) >= {"pass", "fail (too weak)", "not started"}
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
+    cost = at.dataframe[1].value  # what the runs cost, one row per cell
+    assert len(cost) == 9 and cost["started"].sum() == 7 and cost["process_hours"].sum() > 0
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
     assert not at.exception and len(at.get("vega_lite_chart")) == 22  # the ablation: 22 cells
