@@ -15,7 +15,7 @@ import time
 import torch
 
 from algorithms.api import DemoSet
-from algorithms.core.sac import UPDATES, use_static_updates
+from algorithms.core.sac import UPDATES, set_update_mode
 from harness.data import load_demos
 from harness.envs import ENVS, get_spec
 from harness.protocol import Interaction
@@ -31,8 +31,7 @@ def bench_train(algo: str, env: str, members: int, steps: int, device: str, repe
     demos = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
     seeds = list(range(members))
     agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
-    if update != "default":
-        use_static_updates(agent, compile=update == "compiled")
+    set_update_mode(agent, update)
     inter = Interaction(env, seeds, env_workers)
     try:
         return _measure(inter, agent, algo, env, members, steps, device, repeats, seed_steps, log, env_workers, update)

@@ -61,6 +61,7 @@ def read_cache() -> dict[str, float]:
 def measure(group: RunSpec, threads: int) -> float:
     """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O)."""
     from algorithms.api import DemoSet
+    from algorithms.core.sac import set_update_mode
     from harness.data import load_demos
     from harness.envs import get_spec
     from harness.protocol import Interaction
@@ -73,10 +74,7 @@ def measure(group: RunSpec, threads: int) -> float:
     try:
         demos = DemoSet(load_demos(group.env, "forward"), load_demos(group.env, "reverse"))
         algo = cls(get_spec(group.env), demos, cfg, list(group.seeds), torch.device(group.device))
-        if group.update != "default":
-            from algorithms.core.sac import use_static_updates
-
-            use_static_updates(algo, compile=group.update == "compiled")  # compiled at the first update, untimed
+        set_update_mode(algo, group.update)  # compiled at the first update, untimed
         inter = Interaction(group.env, list(group.seeds), group.env_workers)
         try:
             inter.start(algo)

@@ -507,6 +507,7 @@ def _try_status(write, d: Path, **fields: Any) -> None:
 
 def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     from algorithms.api import DemoSet
+    from algorithms.core.sac import set_update_mode
     from harness.data import atomic_write_bytes, demos_fingerprint, load_demos
     from harness.envs import get_spec
     from harness.protocol import train
@@ -526,10 +527,7 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     cls = ALGORITHMS[spec.algo_class]
     demos = DemoSet(load_demos(spec.env, "forward"), load_demos(spec.env, "reverse"))
     algo = cls(get_spec(spec.env), demos, cls.Config.from_dict(spec.config), list(spec.seeds), torch.device(spec.device))
-    if spec.update != "default":
-        from algorithms.core.sac import use_static_updates
-
-        use_static_updates(algo, compile=spec.update == "compiled")
+    set_update_mode(algo, spec.update)
     train(spec, algo, lambda p: say(progress_line(spec.label, p)), should_stop)
 
 

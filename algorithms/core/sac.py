@@ -328,3 +328,11 @@ def use_static_updates(algo, compile: bool = False) -> int:
     for agent in agents:
         agent.use_static_update(compile)
     return len(agents)
+
+
+def set_update_mode(algo, update: str) -> int:
+    """Run ``algo``'s SAC updates in mode ``update`` (one of :data:`UPDATES`): nothing to do for the default, else
+    :func:`use_static_updates` (compiled: through ``torch.compile``). Returns how many agents were switched."""
+    if update not in UPDATES:
+        raise ValueError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
+    return 0 if update == "default" else use_static_updates(algo, compile=update == "compiled")
