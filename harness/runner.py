@@ -379,7 +379,7 @@ def build_plan(req: RunRequest) -> Plan:
                            tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
                            update=req.update)
                    for n, i in enumerate(range(0, len(u.seeds), members))]
-    plan = Plan(suite_name, groups, workers=packing.workers, backend=req.backend, ray_address=req.ray_address,
+    plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend, ray_address=req.ray_address,
                 calibrate=req.calibrate, machine=machine.describe(), packing=packing.reasons,
                 per_device=packing.per_device)
     check_results_dirs(plan)
@@ -563,6 +563,21 @@ def steps_done(spec: RunSpec) -> int:
     return done
 
 
+def run_order(groups: list[RunSpec]) -> list[RunSpec]:
+    """The order the groups run in: first those that resume from a checkpoint (work in flight finishes before new
+    work starts, so a machine that loses its checkpoints loses less), then the other groups of cells (env, method)
+    that have begun (so begun cells reach their verdict), then the rest; suite order within each."""
+    done = {id(g): steps_done(g) for g in groups}
+    begun = {(g.env, g.algo) for g in groups if done[id(g)] > 0}
+
+    def rank(g: RunSpec) -> int:
+        if 0 < done[id(g)] < g.steps * len(g.seeds):
+            return 0
+        return 1 if (g.env, g.algo) in begun else 2
+
+    return sorted(groups, key=rank)
+
+
 def print_plan(plan: Plan, calibrate: bool = False) -> None:
     """The plan, and its time on this machine from measured speeds (``calibrate``: measure what is not cached yet,
     a few seconds per kind of group; see :mod:`harness.calibration`)."""
@@ -583,8 +598,9 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
     rates = dict(zip(todo, calibration.rates([plan.groups[i] for i in todo], threads, calibrate)))
     for i, g in enumerate(plan.groups):
         speed = f"  {rates[i]:,.1f} steps/s per seed" if rates.get(i) else ""
+        state = "  done" if done[i] == total[i] else f"  {done[i]:,} of {total[i]:,} steps done" if done[i] else ""
         print(f"  {g.env:<22} {g.algo:<12} seeds={','.join(map(str, g.seeds)):<10} steps={g.steps:,} "
-              f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{speed}")
+              f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{speed}{state}")
     if any(rates[i] is None for i in todo):
         print("estimated time: not measured yet on this machine; `harness run ... --dry-run` measures each kind of "
               "group for a few seconds (cached)")

@@ -139,6 +139,30 @@ def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
     assert "2,000 env steps in all (400 left to run;" in capsys.readouterr().out  # 1000 - 600 of seed 1
 
 
+def test_plan_runs_work_in_flight_first(tmp_path, capsys):
+    """Groups that resume from a checkpoint run first, then the other groups of begun cells, then the rest, each
+    in suite order; the dry run lists them in that order with what each has done."""
+    from harness.results import checkpoint_path, run_dir, write_status
+    from harness.runner import plan_words
+
+    args = ["run", "algo=naive,oracle,fbrl", "env=sawyer_door", "seeds=2", "steps=1000", "eval_every=100",
+            "checkpoint_every=200", "members=1", "workers=1", f"results={tmp_path}"]
+    fresh = [(g.algo, g.seeds[0]) for g in plan_words(args[1:]).groups]
+    assert fresh == [(a, s) for a in ("naive", "oracle", "fbrl") for s in (0, 1)]  # nothing begun: suite order
+    oracle = (tmp_path, "adhoc", "sawyer_door", "oracle")
+    write_status(run_dir(*oracle, 1), state="interrupted", step=650)
+    checkpoint_path(*oracle, [1]).parent.mkdir(parents=True)
+    checkpoint_path(*oracle, [1]).touch()
+    write_status(run_dir(tmp_path, "adhoc", "sawyer_door", "fbrl", 0), state="done", step=1000)
+    order = [(g.algo, g.seeds[0]) for g in plan_words(args[1:]).groups]
+    assert order == [("oracle", 1), ("oracle", 0), ("fbrl", 0), ("fbrl", 1), ("naive", 0), ("naive", 1)]
+    assert main([*args, "--dry-run", "calibrate=false"]) == 0
+    lines = [x for x in capsys.readouterr().out.splitlines() if "config " in x]
+    assert [x.split()[1] for x in lines] == [a for a, _ in order]
+    assert lines[0].endswith("600 of 1,000 steps done") and lines[2].endswith("done")
+    assert not any(x.endswith("done") for x in (lines[1], *lines[3:]))
+
+
 def test_git_sha_marks_uncommitted_changes(tmp_path):
     from harness.runner import git_sha
 
