@@ -379,9 +379,9 @@ def build_plan(req: RunRequest) -> Plan:
                            tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
                            update=req.update)
                    for n, i in enumerate(range(0, len(u.seeds), members))]
-    plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend, ray_address=req.ray_address,
-                calibrate=req.calibrate, machine=machine.describe(), packing=packing.reasons,
-                per_device=packing.per_device)
+    plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend,
+                ray_address=req.ray_address, calibrate=req.calibrate, machine=machine.describe(),
+                packing=packing.reasons, per_device=packing.per_device)
     check_results_dirs(plan)
     return plan
 
