@@ -205,7 +205,11 @@ class GoalConditioned(Algorithm):
         fwd = self.direction == FORWARD
         distance = np.asarray(self.task.goal_distance(start), dtype=np.float64)
         at_goal = distance <= self.task.success_threshold
-        self.log.add_host("phase/", {"forward_start_distance": distance, "forward_starts_at_goal": at_goal}, mask & fwd)
+        # how far each forward phase starts from the evaluation's start states (rho0), on the whole state: the deployed
+        # policy is tested from rho0, which reset-free training may rarely revisit between hard resets
+        rho0 = np.linalg.norm(obs[:, None, : self.task.state_dim] - self.task.initial_states, axis=-1).min(axis=1)
+        self.log.add_host("phase/", {"forward_start_distance": distance, "forward_starts_at_goal": at_goal,
+                                     "forward_start_rho0_distance": rho0}, mask & fwd)
         self.log.add_host("phase/", {"backward_start_distance": distance, "backward_starts_at_goal": at_goal},
                           mask & ~fwd)
 
@@ -285,5 +289,6 @@ class GoalConditioned(Algorithm):
         """sac/*: the agent's update diagnostics; phase/*: share of steps in backward phases, and of forward
         (backward) phases that ended in success, that reached their goal at any step (the same when success ends the
         phase), or (RISC) ended by an early switch; of phases that began already at their goal, and their mean
-        distance to it at the start (success coordinates)."""
+        distance to it at the start (success coordinates); forward phases' mean distance at the start from the nearest
+        initial state (whole state: how far from where the deployed policy is tested)."""
         return self.log.pop()
