@@ -408,7 +408,7 @@ def test_phase_start_diagnostics_flag_phases_that_begin_at_their_goal():
     assert m["phase/forward_starts_at_goal"].tolist() == [0.0, 0.0]
     assert 0.5 * rho0_gap < m["phase/forward_start_distance"][0] <= 2 * rho0_gap
     assert np.isnan(m["phase/backward_starts_at_goal"]).all()  # no backward phase yet (the protocol drops NaN)
-    # ... and from rho0 on the whole state: the nearest initial state, as close as the reset lands (door angle noise)
+    # ... and from rho0 on the whole state: the distance to the nearest initial state, as close as the reset lands
     gap = np.linalg.norm(v.phase_obs[:, None, : spec.state_dim] - spec.initial_states, axis=-1).min(axis=1)
     np.testing.assert_allclose(m["phase/forward_start_rho0_distance"], gap)
     assert (gap < 0.1).all() and (gap < 0.5 * rho0_gap).all()
