@@ -11,7 +11,7 @@
     harness bench matmul [members=E] [repeats=5]   member-batched products of the SAC update
     harness bench app [runs=100] [evals=300] [repeats=3] [results=DIR]   dashboard page-load time
     harness report [suite=NAME] [results=DIR] [out=DIR] [doc=FILE]
-    harness ship suite=NAME results=DIR [to=results]   copy a suite's evaluation tables (no checkpoints)
+    harness ship suite=NAME results=DIR [to=results] [force=true]   copy a suite's evaluation tables (no checkpoints)
 
 Bad input gets one line on stderr naming the problem and exit code 2; nothing is written.
 """
@@ -23,7 +23,7 @@ import sys
 from pathlib import Path
 
 from harness import data as data_mod
-from harness.words import ConfigError, UsageError, optional_integer, parse_words
+from harness.words import ConfigError, UsageError, boolean, optional_integer, parse_words
 
 
 def parse_overrides(items: list[str], allowed: set[str] | None = None) -> dict[str, str]:
@@ -128,12 +128,15 @@ def cmd_report(args) -> int:
 def cmd_ship(args) -> int:
     from harness.results import ship
 
-    ov = parse_overrides(args.overrides, {"suite", "results", "to"})
+    ov = parse_overrides(args.overrides, {"suite", "results", "to", "force"})
     if "suite" not in ov or "results" not in ov:
-        raise UsageError("usage: harness ship suite=NAME results=DIR [to=results]")
-    written = ship(ov["results"], ov["suite"], ov.get("to", "results"))
+        raise UsageError("usage: harness ship suite=NAME results=DIR [to=results] [force=true]")
+    force = boolean("force", ov.get("force", "false"))
+    written, kept = ship(ov["results"], ov["suite"], ov.get("to", "results"), force=force)
     runs = len({p.parent for p in written})
     print(f"{len(written)} files of {runs} run(s) copied to {Path(ov.get('to', 'results')) / ov['suite']}")
+    for run in kept:
+        print(f"kept the shipped table of {run}; force=true replaces it")
     return 0
 
 

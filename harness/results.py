@@ -26,6 +26,7 @@ from typing import Any, Callable
 
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from harness.data import atomic_write_bytes, find_data_dir
@@ -195,23 +196,39 @@ def load_train(path: str | Path, warn=None) -> pd.DataFrame:
     return load(path, warn, TRAIN_FILE)
 
 
-def ship(source: str | Path, suite: str, dest: str | Path) -> list[Path]:
+def _last_step(evals: Path) -> int:
+    """The furthest evaluated step of an ``evals.parquet`` (-1 when it has no rows)."""
+    steps = pq.read_table(evals, columns=["step"]).column("step")
+    return -1 if len(steps) == 0 else int(pc.max(steps).as_py())
+
+
+def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) -> tuple[list[Path], list[str]]:
     """Copy the evaluation tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``run.yaml``,
     ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
-    tables a repository can ship so that a fresh clone shows them (docs/reproduction.md)."""
+    tables a repository can ship so that a fresh clone shows them (docs/reproduction.md).
+
+    A run that restarted from 0 (its checkpoint lost with a machine) would replace a shipped table that got further;
+    such a run is kept as shipped, and named in the second return value, unless ``force``. Returns (files written,
+    runs kept)."""
     src, dst = Path(source).expanduser() / suite, Path(dest).expanduser() / suite
     if not src.is_dir():
         raise ConfigError(f"no results of suite {suite!r} under {source}")
     if src.resolve() == dst.resolve():
         raise ConfigError(f"source and destination are the same directory: {src}")
-    written = []
+    written, kept = [], []
     for evals in sorted(src.rglob(EVALS_FILE)):
         run = evals.parent
-        if "checkpoints" in run.relative_to(src).parts:
+        rel = run.relative_to(src)
+        if "checkpoints" in rel.parts:
+            continue
+        shipped = dst / rel / EVALS_FILE
+        if not force and shipped.is_file() and _last_step(shipped) > _last_step(evals):
+            kept.append(f"{rel.as_posix()} (shipped to step {_last_step(shipped):,}, the run is at "
+                        f"{_last_step(evals):,})")
             continue
         for name in (EVALS_FILE, RUN_FILE, STATUS_FILE):  # not train.parquet: larger, and kept with the runs
             if (run / name).is_file():
-                target = dst / run.relative_to(src) / name
+                target = dst / rel / name
                 atomic_write_bytes(target, (run / name).read_bytes())
                 written.append(target)
-    return written
+    return written, kept

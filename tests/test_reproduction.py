@@ -258,3 +258,27 @@ def test_ship_copies_tables_not_checkpoints_and_report_rewrites_the_doc_table(tm
     bad.write_text("no table here\n")
     assert main(["report", "suite=reproduction", f"results={runs}", f"out={tmp_path / 'out2'}", f"doc={bad}"]) == 2
     assert not (tmp_path / "out2").exists() and bad.read_text() == "no table here\n"
+
+
+def test_ship_keeps_a_shipped_table_that_got_further_than_a_restarted_run(tmp_path, capsys):
+    """A run restarted from 0 (its checkpoint lost with the machine) must not replace the shipped record of how far
+    the lost run got, until it passes it or force=true says so."""
+    from harness.cli import main
+    from harness.results import load
+
+    runs = write_ladder_results(tmp_path / "runs")
+    repo = tmp_path / "repo"
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo}"]) == 0
+    evals = min((runs / "reproduction").rglob("evals.parquet"))
+    full = pd.read_parquet(evals)
+    restarted = full[full["step"] <= full["step"].min()]  # the run starts again: its first evaluation only
+    restarted.to_parquet(evals, index=False)
+    capsys.readouterr()
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo}"]) == 0
+    out = capsys.readouterr().out
+    rel = evals.parent.relative_to(runs / "reproduction").as_posix()
+    assert f"kept the shipped table of {rel} (shipped to step {int(full['step'].max()):,}" in out
+    pd.testing.assert_frame_equal(pd.read_parquet(repo / "reproduction" / rel / "evals.parquet"), full)
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo}", "force=true"]) == 0
+    pd.testing.assert_frame_equal(load(repo), load(runs))
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo}", "force=maybe"]) == 2
