@@ -287,10 +287,9 @@ def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalE
         for i, d in enumerate(diagnostics):
             d.append(step, {k: float(v[i]) for k, v in m.items() if np.isfinite(v[i])}, flush=False)
 
+    report(0.0, status)  # before the first evaluation (seconds to minutes): a run stopped during it says so
     if step == 0 and not results[0].rows:
         log_eval(0.0)
-    else:
-        report(0.0, status)
 
     rate, t_mark, s_mark = 0.0, time.perf_counter(), step
     wall0, t_start, t_last_report = wall, t_mark, t_mark
