@@ -222,9 +222,8 @@ def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) 
         if "checkpoints" in rel.parts:
             continue
         shipped = dst / rel / EVALS_FILE
-        if not force and shipped.is_file() and _last_step(shipped) > _last_step(evals):
-            kept.append(f"{rel.as_posix()} (shipped to step {_last_step(shipped):,}, the run is at "
-                        f"{_last_step(evals):,})")
+        if not force and shipped.is_file() and (there := _last_step(shipped)) > (here := _last_step(evals)):
+            kept.append(f"{rel.as_posix()} (shipped to step {there:,}, the run is at {here:,})")
             continue
         for name in (EVALS_FILE, RUN_FILE, STATUS_FILE):  # not train.parquet: larger, and kept with the runs
             if (run / name).is_file():
