@@ -549,17 +549,21 @@ def progress_line(label: str, p) -> str:
 
 def steps_done(spec: RunSpec) -> int:
     """Env steps of the group (summed over its seeds) that a run would not redo: finished runs count in full,
-    unfinished ones up to their last checkpoint (the latest multiple of ``checkpoint_every`` they reported)."""
+    unfinished ones up to their last checkpoint (the latest multiple of ``checkpoint_every`` they reported), and
+    runs that finished a smaller budget (``steps=`` raised since) up to the step they finished at (their final
+    checkpoint), from where they go on."""
     from harness.results import read_status
 
     has_checkpoint = spec.checkpoint_path().exists()
     done = 0
     for d in spec.member_dirs():
         st = read_status(d) or {}
-        if st.get("state") == "done":
+        step = int(st.get("step", 0))
+        if st.get("state") == "done" and step >= spec.steps:
             done += spec.steps
         elif has_checkpoint:
-            done += min(int(st.get("step", 0)) // spec.checkpoint_every * spec.checkpoint_every, spec.steps)
+            done += min(step if st.get("state") == "done" else step // spec.checkpoint_every * spec.checkpoint_every,
+                        spec.steps)
     return done
 
 

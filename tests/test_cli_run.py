@@ -137,6 +137,10 @@ def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
     checkpoint_path(*where, [0, 1]).touch()
     assert main(args) == 0
     assert "2,000 env steps in all (400 left to run;" in capsys.readouterr().out  # 1000 - 600 of seed 1
+    # a raised budget: the finished seed goes on from its final checkpoint (1000), seed 1 from 600
+    assert main([a.replace("steps=1000", "steps=2000") for a in args]) == 0
+    out = capsys.readouterr().out
+    assert "4,000 env steps in all (2,400 left to run;" in out and "1,600 of 4,000 steps done" in out
 
 
 def test_plan_runs_work_in_flight_first(tmp_path, capsys):

@@ -37,6 +37,7 @@ class Scripted(Algorithm):
         self.resets: list[tuple[int, np.ndarray]] = []
         self.hard: list[int] = []
         self.t = 0
+        self.observed = 0  # steps this process saw (not checkpointed, unlike t)
 
     def on_reset(self, obs, mask):
         self.resets.append((self.t, mask.copy()))
@@ -46,6 +47,7 @@ class Scripted(Algorithm):
 
     def observe(self, next_obs, hard_reset):
         self.t += 1
+        self.observed += 1
         if hard_reset.any():
             self.hard.append(self.t)
         want = np.zeros(self.E, dtype=bool)
@@ -216,6 +218,24 @@ def test_keep_every_keeps_earlier_checkpoints_and_restores_one_lost_to_a_kill(tm
     plain = _spec(tmp_path / "plain", eval_every=250, checkpoint_every=250)
     train(plain, _algo(plain.seeds))
     assert kept(plain) == ["checkpoint.pt"]
+
+
+def test_a_raised_budget_continues_a_finished_run(tmp_path):
+    """A run finished at steps=500, then run with steps=1000, goes on from its final checkpoint (nothing redone, no
+    row twice) and its results equal a run straight to 1000."""
+    def run(where, steps):
+        spec = _spec(where, steps=steps)
+        algo = _algo(spec.seeds, reset_every=300)
+        train(spec, algo)
+        return algo
+
+    run(tmp_path / "raised", 500)
+    again = run(tmp_path / "raised", 1000)
+    assert (again.t, again.observed) == (1000, 500)  # resumed at 500
+    run(tmp_path / "straight", 1000)
+    a, b = (_comparable(load(tmp_path / w)) for w in ("raised", "straight"))
+    assert len(a) == 2 * 5 * 4 and a[a.metric == "interventions"].value.max() > 0
+    pd.testing.assert_frame_equal(a, b)
 
 
 @requires_data
