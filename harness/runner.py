@@ -558,12 +558,12 @@ def steps_done(spec: RunSpec) -> int:
     done = 0
     for d in spec.member_dirs():
         st = read_status(d) or {}
-        step = int(st.get("step", 0))
-        if st.get("state") == "done" and step >= spec.steps:
+        step, finished = int(st.get("step", 0)), st.get("state") == "done"
+        if finished and step >= spec.steps:
             done += spec.steps
-        elif has_checkpoint:
-            done += min(step if st.get("state") == "done" else step // spec.checkpoint_every * spec.checkpoint_every,
-                        spec.steps)
+        elif has_checkpoint:  # a finished run's final checkpoint is at its last step, an unfinished one's on the grid
+            resume_at = step if finished else step // spec.checkpoint_every * spec.checkpoint_every
+            done += min(resume_at, spec.steps)
     return done
 
 
