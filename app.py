@@ -567,6 +567,12 @@ def tab_reproduction(root: str, sig: tuple) -> None:
         st.caption(f"{cost['process_hours'].sum():.1f} process-hours in all: each seed's last wall_s over the seeds "
                    "sharing its process (core-hours on a CPU with one torch thread per process); rows redone after a "
                    "lost checkpoint count once.")
+    with st.expander("Which commits produced the rows"):
+        commits = R.ladder_commits(ladder, ours)
+        st.dataframe(commits.assign(commits=commits["commits"].map(R.commits_text)), hide_index=True,
+                     column_config={"commits": st.column_config.TextColumn("commits (steps evaluated)")})
+        st.caption("The git SHA each evaluation row carries: a run resumed across commits lists each commit with the "
+                   "steps it evaluated; -dirty marks a tree with uncommitted changes.")
     pub, err = load_published_curves()
     if pub is None:
         st.info(f"Published curves unavailable: {err}")

@@ -117,7 +117,9 @@ def is_cells_suite(suite: str | None) -> bool:
 def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None = None) -> list[Path]:
     """For a suite with cells: ``reproduction.png``/``.pdf`` (one panel per cell, our seeds and the published ones,
     windows shaded, verdicts) and ``reproduction.md``/``.csv`` (the table of checks; the Markdown adds what the runs
-    cost, :func:`harness.reproduction.ladder_cost`); with ``doc``, those tables also replace the ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
+    cost, :func:`harness.reproduction.ladder_cost`, and the commits that produced the rows,
+    :func:`harness.reproduction.ladder_commits`); with ``doc``, those tables also replace the
+    ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
     from harness import reproduction as R
     from harness.data import DataNotFoundError
     from harness.results import load_published
@@ -135,7 +137,9 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
         fig.savefig(p, dpi=150 if ext == "png" else None, bbox_inches="tight")
         written.append(p)
     t = R.ladder_table(ladder, df)
-    tables = R.table_markdown(t) + "\nWhat the runs cost (the shipped rows):\n\n" + R.cost_markdown(R.ladder_cost(ladder, df))
+    tables = (R.table_markdown(t) + "\nWhat the runs cost (the shipped rows):\n\n" + R.cost_markdown(R.ladder_cost(ladder, df))
+              + "\nThe commits that produced the rows (`git_sha`), with the steps each one evaluated:\n\n"
+              + R.commits_markdown(R.ladder_commits(ladder, df)))
     (out / "reproduction.md").write_text(tables)
     if doc:  # the tables into the document, the figure beside it as <suite>.png
         path = Path(doc)

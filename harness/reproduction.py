@@ -98,11 +98,16 @@ def published_curves(published: pd.DataFrame, check: Check, env: str) -> pd.Data
     return p[["seed", "step", "value"]]
 
 
+def cell_rows(ours: pd.DataFrame, suite: str, cell: Cell) -> pd.DataFrame:
+    """Every result row of a cell's seeds."""
+    return ours[(ours["suite"] == suite) & (ours["env"] == cell.env) & (ours["algo"] == cell.name)
+                & ours["seed"].isin(cell.seeds)]
+
+
 def our_curves(ours: pd.DataFrame, suite: str, cell: Cell) -> pd.DataFrame:
     """Our per-seed deployed-success curves of a cell: seed, step, value (the cell's seeds only)."""
-    o = ours[(ours["suite"] == suite) & (ours["env"] == cell.env) & (ours["algo"] == cell.name)
-             & (ours["metric"] == METRIC) & ours["seed"].isin(cell.seeds)]
-    return o[["seed", "step", "value"]]
+    o = cell_rows(ours, suite, cell)
+    return o.loc[o["metric"] == METRIC, ["seed", "step", "value"]]
 
 
 def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_every: int = 10_000) -> dict:
@@ -170,8 +175,7 @@ def ladder_cost(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
     from 0 after its checkpoint was lost counts once."""
     rows = []
     for cell in ladder.cells:
-        o = ours[(ours["suite"] == ladder.suite) & (ours["env"] == cell.env) & (ours["algo"] == cell.name)
-                 & ours["seed"].isin(cell.seeds)]
+        o = cell_rows(ours, ladder.suite, cell)
         started, steps, hours, rates = 0, 0, 0.0, []
         for s in cell.seeds:
             r = o[o["seed"] == s]
@@ -200,6 +204,41 @@ def cost_markdown(c: pd.DataFrame) -> str:
         lines.append(f"| {r.method} | {r.env} | {r.started} of {r.seeds} | {r.steps:,} | {r.process_hours:.1f} | {rate} |")
     lines.append(f"| total | | {int(c['started'].sum())} of {int(c['seeds'].sum())} | {int(c['steps'].sum()):,} | "
                  f"{c['process_hours'].sum():.1f} | |")
+    return "\n".join(lines) + "\n"
+
+
+def ladder_commits(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
+    """Which code produced each seed's rows: one row per started seed of each cell with ``commits``, a list of
+    (git SHA, first step, last step) in the order the SHAs first evaluate. A run resumed across commits lists each
+    commit with the evaluations it made; ``-dirty`` marks a tree with uncommitted changes."""
+    rows = []
+    for cell in ladder.cells:
+        o = cell_rows(ours, ladder.suite, cell)
+        for s in cell.seeds:
+            r = o[o["seed"] == s]
+            if r.empty:
+                continue
+            spans = r.assign(git_sha=r["git_sha"].fillna("unknown")).groupby("git_sha")["step"].agg(["min", "max"]).sort_values("min")
+            rows.append({"method": cell.name, "env": cell.env, "seed": s,
+                         "commits": [(sha, int(lo), int(hi)) for sha, lo, hi in spans.itertuples()]})
+    return pd.DataFrame(rows, columns=["method", "env", "seed", "commits"])
+
+
+def _steps(n: int) -> str:
+    return f"{n / 1000:g}k" if n else "0"
+
+
+def commits_text(commits: list[tuple[str, int, int]], quote: str = "") -> str:
+    """One seed's commits as ``abc1234 (0-220k), def5678 (230k-740k)``: short SHAs, each in ``quote``."""
+    return ", ".join(f"{quote}{sha[:7]}{'-dirty' if sha.endswith('-dirty') else ''}{quote} "
+                     f"({_steps(lo)}{'' if lo == hi else '-' + _steps(hi)})" for sha, lo, hi in commits)
+
+
+def commits_markdown(c: pd.DataFrame) -> str:
+    """:func:`ladder_commits` as a Markdown table, short SHAs with the steps each one evaluated."""
+    lines = ["| method | env | seed | commits (steps evaluated) |", "|---|---|---|---|"]
+    for r in c.itertuples():
+        lines.append(f"| {r.method} | {r.env} | {r.seed} | {commits_text(r.commits, '`')} |")
     return "\n".join(lines) + "\n"
 
 

@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from harness import reproduction as R
+from harness.results import run_dir
 from harness.runner import plan_words
 from harness.suites import ConfigError
 from harness.synthetic import write_run
@@ -176,6 +177,11 @@ def test_ladder_table_and_report(tmp_path, capsys):
     root = write_ladder_results(tmp_path / "results")
     from harness.results import load
 
+    # RISC/tabletop seed 1 resumed at 160k under another commit, from a tree with uncommitted changes
+    f = run_dir(root, "reproduction", "tabletop_manipulation", "risc", 1) / "evals.parquet"
+    e = pd.read_parquet(f)
+    e.loc[e["step"] > 150_000, "git_sha"] = "abcdef0123456789-dirty"
+    e.to_parquet(f)
     t = R.ladder_table(R.load_ladder("reproduction"), load(root)).set_index(["method", "env", "window"])
     assert t.loc[("risc", "tabletop_manipulation", "200k-300k"), "status"] == "pass"
     assert t.loc[("oracle", "sawyer_door", "200k-300k"), "verdict"] == "fail (too weak)"
@@ -194,6 +200,13 @@ def test_ladder_table_and_report(tmp_path, capsys):
     cost = R.ladder_cost(R.load_ladder("reproduction"), load(root)).set_index(["method", "env"])
     assert cost.loc[("medal", "tabletop_manipulation"), "process_hours"] == pytest.approx(3 * 2_500 / 3 / 3600)
     assert "| total | | 7 of 19 | 1,350,000 |" in md
+    # the commits that produced each seed's rows, with the steps each evaluated
+    assert "| risc | tabletop_manipulation | 0 | `0000000` (0-300k) |" in md
+    assert "| risc | tabletop_manipulation | 1 | `0000000` (0-150k), `abcdef0-dirty` (160k-300k) |" in md
+    assert "| medal | tabletop_manipulation | 2 | `0000000` (0-50k) |" in md
+    commits = R.ladder_commits(R.load_ladder("reproduction"), load(root))
+    assert len(commits) == 7 and commits["commits"].map(len).tolist().count(2) == 1
+    assert R.commits_text([("f" * 40, 50_000, 50_000)]) == "fffffff (50k)"
     assert (out / "reproduction.png").stat().st_size > 10_000
     csv = pd.read_csv(out / "reproduction.csv")
     assert list(csv["status"]).count("pass") == 1 and list(csv["status"]).count("fail") == 1
@@ -212,6 +225,8 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell
     cost = at.dataframe[1].value  # what the runs cost, one row per cell
     assert len(cost) == 9 and cost["started"].sum() == 7 and cost["process_hours"].sum() > 0
+    commits = at.dataframe[2].value  # which commits produced the rows, one row per started seed
+    assert len(commits) == 7 and set(commits["commits"]) == {"0000000 (0-300k)", "0000000 (0-50k)"}
     at.selectbox(key="repro_suite").set_value("vaprl_ablation")
     at.run()
     assert not at.exception and len(at.get("vega_lite_chart")) == 22  # the ablation: 22 cells
