@@ -218,7 +218,8 @@ def ladder_commits(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
             r = o[o["seed"] == s]
             if r.empty:
                 continue
-            spans = r.assign(git_sha=r["git_sha"].fillna("unknown")).groupby("git_sha")["step"].agg(["min", "max"]).sort_values("min")
+            shas = r["git_sha"].fillna("unknown")
+            spans = r["step"].groupby(shas).agg(["min", "max"]).sort_values("min")
             rows.append({"method": cell.name, "env": cell.env, "seed": s,
                          "commits": [(sha, int(lo), int(hi)) for sha, lo, hi in spans.itertuples()]})
     return pd.DataFrame(rows, columns=["method", "env", "seed", "commits"])
