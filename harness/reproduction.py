@@ -209,8 +209,9 @@ def cost_markdown(c: pd.DataFrame) -> str:
 
 def ladder_commits(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
     """Which code produced each seed's rows: one row per started seed of each cell with ``commits``, a list of
-    (git SHA, first step, last step) in the order the SHAs first evaluate. A run resumed across commits lists each
-    commit with the evaluations it made; ``-dirty`` marks a tree with uncommitted changes."""
+    (git SHA, first step, last step), one per stretch of consecutive evaluations made by the same SHA, in step order.
+    A run resumed across commits lists each commit with the evaluations it made (a commit it went back to, again);
+    ``-dirty`` marks a tree with uncommitted changes."""
     rows = []
     for cell in ladder.cells:
         o = cell_rows(ours, ladder.suite, cell)
@@ -218,10 +219,12 @@ def ladder_commits(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
             r = o[o["seed"] == s]
             if r.empty:
                 continue
+            r = r.sort_values("step", kind="stable")
             shas = r["git_sha"].fillna("unknown")
-            spans = r["step"].groupby(shas).agg(["min", "max"]).sort_values("min")
+            stretch = (shas != shas.shift()).cumsum()  # a new stretch wherever the SHA changes along the steps
+            spans = r["step"].groupby(stretch).agg(["min", "max"]).assign(sha=shas.groupby(stretch).first())
             rows.append({"method": cell.name, "env": cell.env, "seed": s,
-                         "commits": [(sha, int(lo), int(hi)) for sha, lo, hi in spans.itertuples()]})
+                         "commits": [(sha, int(lo), int(hi)) for lo, hi, sha in spans.itertuples(index=False)]})
     return pd.DataFrame(rows, columns=["method", "env", "seed", "commits"])
 
 

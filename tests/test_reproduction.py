@@ -177,11 +177,12 @@ def test_ladder_table_and_report(tmp_path, capsys):
     root = write_ladder_results(tmp_path / "results")
     from harness.results import load
 
-    # RISC/tabletop seed 1 resumed at 160k under another commit, from a tree with uncommitted changes
+    # RISC/tabletop seed 1 resumed at 160k under another commit, from a tree with uncommitted changes, and went back
+    # to the first commit at 260k
     f = run_dir(root, "reproduction", "tabletop_manipulation", "risc", 1) / "evals.parquet"
     e = pd.read_parquet(f)
-    e.loc[e["step"] > 150_000, "git_sha"] = "abcdef0123456789-dirty"
-    e.to_parquet(f)
+    e.loc[e["step"].between(160_000, 250_000), "git_sha"] = "abcdef0123456789-dirty"
+    e.sample(frac=1, random_state=0).to_parquet(f)  # row order must not matter
     t = R.ladder_table(R.load_ladder("reproduction"), load(root)).set_index(["method", "env", "window"])
     assert t.loc[("risc", "tabletop_manipulation", "200k-300k"), "status"] == "pass"
     assert t.loc[("oracle", "sawyer_door", "200k-300k"), "verdict"] == "fail (too weak)"
@@ -202,10 +203,10 @@ def test_ladder_table_and_report(tmp_path, capsys):
     assert "| total | | 7 of 19 | 1,350,000 |" in md
     # the commits that produced each seed's rows, with the steps each evaluated
     assert "| risc | tabletop_manipulation | 0 | `0000000` (0-300k) |" in md
-    assert "| risc | tabletop_manipulation | 1 | `0000000` (0-150k), `abcdef0-dirty` (160k-300k) |" in md
+    assert "| risc | tabletop_manipulation | 1 | `0000000` (0-150k), `abcdef0-dirty` (160k-250k), `0000000` (260k-300k) |" in md
     assert "| medal | tabletop_manipulation | 2 | `0000000` (0-50k) |" in md
     commits = R.ladder_commits(R.load_ladder("reproduction"), load(root))
-    assert len(commits) == 7 and commits["commits"].map(len).tolist().count(2) == 1
+    assert len(commits) == 7 and sorted(commits["commits"].map(len)) == [1, 1, 1, 1, 1, 1, 3]
     assert R.commits_text([("f" * 40, 50_000, 50_000)]) == "fffffff (50k)"
     assert (out / "reproduction.png").stat().st_size > 10_000
     csv = pd.read_csv(out / "reproduction.csv")
