@@ -556,7 +556,8 @@ def tab_reproduction(root: str, sig: tuple) -> None:
                                 "budget": st.column_config.NumberColumn("budget", format="%d")})
     st.caption(f"A check passes when our seed-mean of the window means lies in [published min - {ladder.widen:g}, "
                f"published max + {ladder.widen:g}] (the per-seed range of the published seeds, widened); it is running "
-               "until every seed has all its evaluations in the window. docs/reproduction.md explains the rule.")
+               "until every seed has all its evaluations in the window (\"pass whatever the rest scores\": no outcome of "
+               "the evaluations still to come can turn it). docs/reproduction.md explains the rule.")
     with st.expander("What the runs cost"):
         cost = R.ladder_cost(ladder, ours)
         st.dataframe(cost, hide_index=True, column_config={

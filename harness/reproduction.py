@@ -121,17 +121,34 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
     complete = all(need <= set(curves.loc[curves["seed"] == s, "step"].astype(int)) for s in cell.seeds)
     lower, upper = check.min - widen, check.max + widen
     mean = float(per_seed.reindex(list(cell.seeds)).mean()) if len(per_seed) else float("nan")
+    # The seed-mean's bounds if every window evaluation still to come scores 0, or every one 1 (success is in [0, 1]):
+    # a running check whose bounds both lie on one side of the band's edges is already decided.
+    least = most = 0.0
+    for s in cell.seeds:
+        w = curves[(curves["seed"] == s) & (curves["step"] > check.lo) & (curves["step"] <= check.hi)]
+        missing = len(need - set(w["step"].astype(int)))
+        least += w["value"].sum() / (len(w) + missing) / len(cell.seeds)
+        most += (w["value"].sum() + missing) / (len(w) + missing) / len(cell.seeds)
     if not complete:
         status = "running"
     else:
         status = "pass" if lower <= mean <= upper else "fail"
+    decided = ("pass" if lower <= least and most <= upper
+               else "fail" if most < lower or least > upper else None)
     return {"status": status, "ours": mean, "ours_per_seed": [float(per_seed.get(s, np.nan)) for s in cell.seeds],
             "lower": lower, "upper": upper, "reached": reached, "furthest": max(by_seed),
-            "started": sum(r > 0 for r in by_seed), "seeds": len(by_seed)}
+            "started": sum(r > 0 for r in by_seed), "seeds": len(by_seed), "bounds": (float(least), float(most)),
+            "decided": decided if status == "running" else None}
 
 
 def verdict_text(v: dict, check: Check, steps: int, short: bool = False) -> str:
-    """The verdict in words; ``short``: brief enough for a panel title ("at 90,000 of 300,000 steps")."""
+    """The verdict in words; ``short``: brief enough for a panel title ("at 90,000 of 300,000 steps"). A running
+    check that the evaluations still to come cannot turn says so ("...; a pass whatever the rest scores")."""
+    if v["status"] == "running" and v.get("decided"):
+        d = v["decided"] + ("" if v["decided"] == "pass" else
+                            " (too weak)" if v["bounds"][1] < v["lower"] else " (too strong)")
+        running = verdict_text({**v, "decided": None}, check, steps, short)
+        return f"{running}, {d} already" if short else f"{running}; {d} whatever the rest scores"
     if v["status"] == "running":
         if v["reached"] and v["reached"] < v["furthest"]:
             if short:

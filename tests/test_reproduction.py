@@ -40,22 +40,36 @@ def test_criterion_passes_faithful_fails_weak_and_too_strong_waits_for_the_windo
     assert weak["status"] == "fail" and R.verdict_text(weak, check, CELL.steps) == "fail (too weak)"
     strong = R.verdict(_curves({0: ten(1.0, 1.0), 1: ten(0.95, 0.95)}), CELL, check, 0.1)
     assert strong["status"] == "fail" and R.verdict_text(strong, check, CELL.steps) == "fail (too strong)"
-    # one seed short of the window's last evaluation: running, whatever the values
+    # one seed short of the window's last evaluation: running, whatever the values; here no last evaluation
+    # (0 or 1) can move the seed-mean out of [0.3, 0.9], so the text says the pass is decided
     partial = _curves({0: ten(0.6, 0.6), 1: ten(0.6, 0.6)[:-1]})
     v = R.verdict(partial, CELL, check, 0.1)
-    assert v["status"] == "running" and v["reached"] == 90_000
+    assert v["status"] == "running" and v["reached"] == 90_000 and v["decided"] == "pass"
+    assert v["bounds"] == pytest.approx((0.54, 0.64))  # seed 1 ends at 2.4 / 5 or 3.4 / 5
     assert R.verdict_text(v, check, CELL.steps) == ("running: 2 seeds, the slowest at 90,000, the furthest at "
-                                                    "100,000 of 100,000 steps")
+                                                    "100,000 of 100,000 steps; pass whatever the rest scores")
     level = R.verdict(_curves({0: ten(0.6, 0.6)[:-1], 1: ten(0.6, 0.6)[:-1]}), CELL, check, 0.1)
-    assert R.verdict_text(level, check, CELL.steps) == "running: reached 90,000 of 100,000 steps"
-    assert R.verdict_text(level, check, CELL.steps, short=True) == "at 90,000 of 100,000 steps"
+    assert R.verdict_text(level, check, CELL.steps) == "running: reached 90,000 of 100,000 steps; pass whatever the rest scores"
+    assert R.verdict_text(level, check, CELL.steps, short=True) == "at 90,000 of 100,000 steps, pass already"
+    # 0.0 at three of five window evaluations: bounds (0.0, 0.4) straddle the band's lower edge 0.3, undecided;
+    # 0.0 at four of five: at most 0.2, a fail already
+    open_ = R.verdict(_curves({0: ten(0.0, 0.0)[:-2], 1: ten(0.0, 0.0)[:-2]}), CELL, check, 0.1)
+    assert open_["decided"] is None and open_["bounds"] == pytest.approx((0.0, 0.4))
+    assert R.verdict_text(open_, check, CELL.steps) == "running: reached 80,000 of 100,000 steps"
+    weak_soon = R.verdict(_curves({0: ten(0.0, 0.0)[:-1], 1: ten(0.0, 0.0)[:-1]}), CELL, check, 0.1)
+    assert weak_soon["decided"] == "fail" and R.verdict_text(weak_soon, check, CELL.steps, short=True) == (
+        "at 90,000 of 100,000 steps, fail (too weak) already")
+    low = R.Check(50_000, 100_000, "src", "x", 0.4, 0.3, 0.5)  # band [0.2, 0.6]; 1.0 at four of five: at least 0.8
+    strong_soon = R.verdict(_curves({0: ten(1.0, 1.0)[:-1], 1: ten(1.0, 1.0)[:-1]}), CELL, low, 0.1)
+    assert strong_soon["decided"] == "fail" and R.verdict_text(strong_soon, low, CELL.steps) == (
+        "running: reached 90,000 of 100,000 steps; fail (too strong) whatever the rest scores")
     assert R.verdict_text(R.verdict(partial.iloc[:0], CELL, check, 0.1), check, CELL.steps) == "not started"
     one = R.verdict(partial[partial["seed"] == 1], CELL, check, 0.1)  # seed 0 not begun
     assert one["status"] == "running" and one["reached"] == 0 and one["started"] == 1
     assert R.verdict_text(one, check, CELL.steps) == ("running: 1 of 2 seeds started, the furthest at 90,000 of "
                                                       "100,000 steps")
     assert R.verdict_text(one, check, CELL.steps, short=True) == "1 of 2 seeds at 90,000 of 100,000 steps"
-    assert R.verdict_text(v, check, CELL.steps, short=True) == "2 seeds at 90,000-100,000 of 100,000 steps"
+    assert R.verdict_text(v, check, CELL.steps, short=True) == "2 seeds at 90,000-100,000 of 100,000 steps, pass already"
     # evaluations outside (lo, hi] do not count
     assert R.window_means(_curves({0: [1.0] * 10}, start=0), 50_000, 100_000).tolist() == [1.0]
 
