@@ -143,7 +143,7 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
 
 def verdict_text(v: dict, check: Check, steps: int, short: bool = False) -> str:
     """The verdict in words; ``short``: brief enough for a panel title ("at 90,000 of 300,000 steps"). A running
-    check that the evaluations still to come cannot turn says so ("...; a pass whatever the rest scores")."""
+    check that the evaluations still to come cannot turn says so ("...; pass whatever the rest scores")."""
     if v["status"] == "running" and v.get("decided"):
         d = v["decided"] + ("" if v["decided"] == "pass" else
                             " (too weak)" if v["bounds"][1] < v["lower"] else " (too strong)")
