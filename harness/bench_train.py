@@ -16,6 +16,7 @@ import torch
 
 from algorithms.api import DemoSet
 from algorithms.core.sac import UPDATES, set_update_mode
+from harness.command_keys import BENCH
 from harness.data import load_demos
 from harness.envs import ENVS, get_spec
 from harness.protocol import Interaction
@@ -69,7 +70,7 @@ def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_step
 
 
 def bench_train_cli(ov: dict[str, str]) -> int:
-    allowed = {"algo", "env", "members", "steps", "device", "repeats", "threads", "env_workers", "seed_steps", "update"}
+    allowed = set(BENCH["train"])
     unknown = set(ov) - allowed
     if unknown:
         raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")

@@ -22,6 +22,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from harness import command_keys as keys
 from harness import data as data_mod
 from harness.words import ConfigError, UsageError, boolean, optional_integer, parse_words
 
@@ -63,7 +64,7 @@ def cmd_data(args) -> int:
         from harness.envs import ENVS
         from harness.envs.experts import generate_demos
 
-        ov = parse_overrides(args.overrides, {"env", "envs", "out", "seed"})
+        ov = parse_overrides(args.overrides, {"env", *keys.SCRIPTED})
         envs = _csv(ov.get("envs") or ov.get("env")) or [e for e, info in ENVS.items() if info.experts]
         for e in envs:
             if e not in ENVS:
@@ -87,7 +88,7 @@ def cmd_bench(args) -> int:
         from harness.bench import bench_env
         from harness.envs import ENVS
 
-        ov = parse_overrides(args.overrides, {"envs", "env", "steps", "repeats"})
+        ov = parse_overrides(args.overrides, {"env", *keys.BENCH["env"]})
         envs = _csv(ov.get("envs") or ov.get("env"))
         for e in envs or []:
             if e not in ENVS:
@@ -102,14 +103,14 @@ def cmd_bench(args) -> int:
     if args.what == "matmul":
         from harness.bench import bench_matmul
 
-        ov = parse_overrides(args.overrides, {"members", "repeats"})
+        ov = parse_overrides(args.overrides, set(keys.BENCH["matmul"]))
         bench_matmul(optional_integer("members", ov.get("members"), 2, 1),
                      optional_integer("repeats", ov.get("repeats"), 5, 1))
         return 0
     if args.what == "app":
         from harness.bench_app import bench_app_cli
 
-        return bench_app_cli(parse_overrides(args.overrides, {"runs", "evals", "repeats", "results"}))
+        return bench_app_cli(parse_overrides(args.overrides, set(keys.BENCH["app"])))
     raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, matmul, app")
 
 
@@ -128,7 +129,7 @@ def cmd_report(args) -> int:
 def cmd_ship(args) -> int:
     from harness.results import ship
 
-    ov = parse_overrides(args.overrides, {"suite", "results", "to", "force"})
+    ov = parse_overrides(args.overrides, set(keys.SHIP))
     if "suite" not in ov or "results" not in ov:
         raise UsageError("usage: harness ship suite=NAME results=DIR [to=results] [force=true]")
     force = boolean("force", ov.get("force", "false"))
@@ -199,12 +200,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--best", action="store_true", help="print the study's best parameters as a YAML override")
     t.set_defaults(fn=cmd_tune)
 
-    rp = sub.add_parser("report", help="curves (PNG/PDF) and Table 1 (Markdown/LaTeX/CSV) from results")
+    rp = sub.add_parser("report", help="curves (PNG/PDF) and Table 1 (Markdown/LaTeX/CSV) from results",
+                        epilog=keys_help(keys.REPORT, False), formatter_class=raw)
     rp.add_argument("overrides", nargs="*")
     rp.set_defaults(fn=cmd_report)
 
     sh = sub.add_parser("ship", help="copy a suite's evaluation tables (evals.parquet, run.yaml, status.json) "
-                                     "to another results directory, without checkpoints")
+                                     "to another results directory, without checkpoints",
+                        epilog=keys_help(keys.SHIP, False), formatter_class=raw)
     sh.add_argument("overrides", nargs="*")
     sh.set_defaults(fn=cmd_ship)
 
@@ -213,12 +216,15 @@ def build_parser() -> argparse.ArgumentParser:
     f = dsub.add_parser("fetch", help="download EARL's demonstrations into the cache")
     f.add_argument("--dest", help="target directory (default: the project cache)")
     f.add_argument("--base-url", default=data_mod.EARL_REPO_URL)
-    s = dsub.add_parser("scripted", help="generate demonstrations with the scripted experts")
+    s = dsub.add_parser("scripted", help="generate demonstrations with the scripted experts",
+                        epilog=keys_help(keys.SCRIPTED, False), formatter_class=raw)
     s.add_argument("overrides", nargs="*")
     d.set_defaults(fn=cmd_data)
 
     b = sub.add_parser("bench", help="benchmarks: env and training throughput, network products, dashboard page-load "
-                                      "time")
+                                      "time", formatter_class=raw,
+                       epilog="\n\n".join(f"harness bench {what}: " + keys_help(table, False)
+                                            for what, table in keys.BENCH.items()))
     b.add_argument("what", choices=["env", "train", "matmul", "app"])
     b.add_argument("overrides", nargs="*")
     b.set_defaults(fn=cmd_bench)
@@ -236,8 +242,13 @@ def main(argv: list[str] | None = None) -> int:
     # hands back the words after it, which are key=value words too
     args, extra = parser.parse_known_args(argv)
     if extra:
-        if not hasattr(args, "overrides") or any(w.startswith("-") for w in extra):
+        if not hasattr(args, "overrides"):
             parser.parse_args(argv)  # the usual argparse error for what is really unknown
+        flags = [w for w in extra if w.startswith("-")]
+        if flags:  # name only the unknown flags, not the key=value words that followed them
+            print(f"harness: error: unknown flag(s) {' '.join(flags)} (see `harness {args.cmd} --help`)",
+                  file=sys.stderr)
+            return 2
         args.overrides = [*args.overrides, *extra]
     previous = data_mod._explicit_default
     data_mod.set_data_dir(args.data_dir)

@@ -29,6 +29,8 @@ from pathlib import Path
 import pandas as pd
 
 from harness import analysis as A
+from harness.command_keys import CURVE_METRICS, PUBLISHED_SOURCES
+from harness.command_keys import REPORT as REPORT_KEYS
 from harness.labels import algo_label, env_label, method_color, order_algos, order_envs
 from harness.stats import aggregate_scores
 from harness.suites import ConfigError, load_suite
@@ -36,11 +38,10 @@ from harness.tables import table1, table1_csv, table1_latex, table1_markdown
 from harness.words import integer as parse_int
 from harness.words import parse_words
 
-KEYS = {"suite", "results", "out", "step", "smooth", "published", "metric", "doc"}
-SOURCES = ("risc_paper", "earl_benchmark")
-CURVE_METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions")
+SOURCES = PUBLISHED_SOURCES
 Y_LABELS = {"deployed_success": "Deployed success", "deployed_return": "Deployed return",
             "continuing_reward": "Cumulative training reward", "interventions": "Interventions"}
+KEYS = set(REPORT_KEYS)
 
 
 def parse(overrides: list[str]) -> dict[str, str]:

@@ -21,7 +21,7 @@ import subprocess
 import sys
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -67,9 +67,10 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
     "env_workers": ("0 (cuda: spare cores)", "worker processes stepping the member envs of each group (0: in the group's process; "
                          "for many seeds per process, e.g. on a GPU)"),
-    "update": ("default", "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed "
-                          "runs), static (one fixed kernel sequence, equal within rounding), compiled (static + "
-                          "torch.compile; CUDA graphs on a GPU)"),
+    "update": ("the mode the run last ran with, else default",
+               "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed runs), "
+               "static (one fixed kernel sequence, equal within rounding), compiled (static + torch.compile; CUDA "
+               "graphs on a GPU); a run resumes bit for bit only in the mode it ran with"),
     "logger": ("parquet", "parquet, or tensorboard: the same rows also as TensorBoard events in each run's "
                           "tensorboard/ directory (pip install tensorboard)"),
     "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
@@ -181,7 +182,7 @@ class RunRequest:
     calibrate: bool = True
     logger: str = "parquet"
     env_workers: int | None = None
-    update: str = "default"
+    update: str | None = None  # None: the mode the runs last ran with (resumed_update), else default
     config: dict[str, dict[str, Any]] = field(default_factory=dict)
     study: str | None = None
     trial: int | None = None
@@ -208,8 +209,8 @@ class RunRequest:
             raise ConfigError("ray_address is only used with backend=ray")
         device = check_device(ov.get("device", "cpu"), local=not (backend == "ray" and ov.get("ray_address")))
 
-        update = ov.get("update", "default")
-        if update not in UPDATES:
+        update = ov.get("update")
+        if update is not None and update not in UPDATES:
             raise ConfigError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
         logger = ov.get("logger", "parquet")
         if logger not in LOGGERS:
@@ -306,7 +307,7 @@ def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
         members = None if given is None else _int(f"members of {where}", given, 1, MAX_MEMBERS)
         units.append(Unit(env, name, algo, steps, seeds, members, dict(config), cpu_members=len(seeds)))
     if not units:
-        raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(pick_algos)) or '*'} "
+        raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(req.algos)) or '*'} "
                           f"env={','.join(sorted(pick_envs)) or '*'}")
     return units
 
@@ -377,8 +378,10 @@ def build_plan(req: RunRequest) -> Plan:
                            device=packing.device_of(len(groups) + n), results=req.results, config=cfg_plain,
                            config_hash=h, demo_source=fwd.source, git_sha=sha, study=req.study, trial=req.trial,
                            tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
-                           update=req.update)
+                           update=req.update or "default")
                    for n, i in enumerate(range(0, len(u.seeds), members))]
+    if req.update is None:
+        groups = [replace(g, update=resumed_update(g)) for g in groups]
     plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend,
                 ray_address=req.ray_address, calibrate=req.calibrate, machine=machine.describe(),
                 packing=packing.reasons, per_device=packing.per_device)
@@ -399,6 +402,22 @@ def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
     return all(k in new and new[k] == v for k, v in old.items())
 
 
+def resumed_update(g: RunSpec) -> str:
+    """The update mode a group runs with when ``update=`` is not given: the one its runs last ran with (when they
+    agree), else ``default``. So the command that started a run resumes it bit for bit, whatever mode it chose."""
+    from harness.results import RUN_FILE
+
+    modes = {read_run_record(d / RUN_FILE).get("update", "default") for d in g.member_dirs() if (d / RUN_FILE).exists()}
+    return modes.pop() if len(modes) == 1 else "default"
+
+
+def _finished(d: Path, steps: int) -> bool:
+    from harness.results import read_status
+
+    st = read_status(d) or {}
+    return st.get("state") == "done" and int(st.get("step", 0)) >= steps
+
+
 def check_results_dirs(plan: Plan) -> None:
     """Refuse to mix runs of a different config into an existing results directory (a config that only gained
     keys, at the defaults that keep the old behaviour, is the same config: see :func:`only_gained_keys`)."""
@@ -410,7 +429,8 @@ def check_results_dirs(plan: Plan) -> None:
             _check_writable(d)
             if p.exists():
                 old = read_run_record(p)
-                if old.get("update", "default") != g.update:
+                quiet = _finished(d, g.steps)  # a finished run does not train again: nothing to note
+                if old.get("update", "default") != g.update and not quiet:
                     print(f"harness: note: {p.parent}: this run last ran with update={old.get('update', 'default')}, "
                           f"now update={g.update}: the curve goes on equal within float rounding, not bit for bit "
                           "(give the same update= to resume exactly)", file=sys.stderr)
@@ -419,6 +439,8 @@ def check_results_dirs(plan: Plan) -> None:
                 same_protocol = all(old.get(k) == getattr(g, k) for k in ("eval_every", "eval_episodes", "demo_source"))
                 if same_protocol and isinstance(old.get("config"), dict) and only_gained_keys(old["config"], g.config):
                     gained = sorted(set(g.config) - set(old["config"]))
+                    if quiet:
+                        continue
                     print(f"harness: note: {p.parent}: the config gained key(s) {', '.join(gained)} since this run "
                           "started; resuming it under the new code", file=sys.stderr)
                     continue
@@ -606,8 +628,8 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
         print(f"  {g.env:<22} {g.algo:<12} seeds={','.join(map(str, g.seeds)):<10} steps={g.steps:,} "
               f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{speed}{state}")
     if any(rates[i] is None for i in todo):
-        print("estimated time: not measured yet on this machine; `harness run ... --dry-run` measures each kind of "
-              "group for a few seconds (cached)")
+        print("estimated time: not measured yet on this machine; `harness run ... --dry-run calibrate=true` (the "
+              "default) measures each kind of group for a few seconds (cached)")
         return
     work = [((total[i] - done[i]) // len(plan.groups[i].seeds), rates[i]) for i in todo]
     est = calibration.estimate(work, plan.workers)

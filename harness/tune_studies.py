@@ -82,6 +82,8 @@ def retry_callback_class():
 def open_study(setup: dict[str, Any], create: bool, storage=None):
     """The study of ``setup`` (created when ``create`` and absent) on ``storage`` (default: a new one from setup)."""
     optuna = load_optuna()
+    if storage is None and not create and "://" not in setup["storage"] and not Path(setup["storage"]).is_file():
+        raise ConfigError(f"no study {setup['study']!r} in {setup['storage']} (no such file)")  # and write none
     storage = storage if storage is not None else make_storage(setup)
     try:
         if create:

@@ -211,6 +211,9 @@ def test_seed_lists():
          "keep_every (30000) must be a multiple of checkpoint_every (20000)"),
         (["algo=medal", "env=sawyer_door", "keep_every=-1"], "keep_every must be >= 0"),
         (["algo=medal"], "give suite=NAME, or algo=... and env=..."),
+        (["algo=medal", "env=sawyer_door", "--dryrun"], "unknown flag(s) --dryrun (see `harness run --help`)"),
+        (["suite=reproduction", "algo=medal", "env=sawyer_peg"],
+         "no cell of the suite matches algo=medal env=sawyer_peg"),
     ],
 )
 def test_bad_input_one_line_exit_2(args, needle, tmp_path, capsys):

@@ -291,15 +291,24 @@ def test_broken_run_yaml_is_one_line_naming_the_file(tmp_path, capsys, content, 
 
 
 @requires_data
-def test_resuming_with_another_update_mode_says_so(tmp_path, capsys):
-    """A run resumed under another ``update=`` goes on within rounding, not bitwise: one note names both modes."""
+def test_a_run_resumes_in_the_update_mode_it_ran_with_unless_told_otherwise(tmp_path, capsys):
+    """Without ``update=``, a run goes on in the mode it last ran with (the same command resumes it bitwise); an
+    explicit other mode goes on within rounding, not bitwise, and one note names both modes. A finished run does
+    not train again, so it gets no note."""
+    from harness.runner import plan_words
+
     words = ["run", "algo=naive", "env=tabletop_manipulation", "steps=200", "eval_every=200", *TINY,
              f"results={tmp_path}", "workers=1", "update=static"]
     assert main(words) == 0
     capsys.readouterr()
-    assert main(words + ["--dry-run", "calibrate=false"]) == 0
-    assert "update=" not in capsys.readouterr().err
-    assert main([w for w in words if w != "update=static"] + ["--dry-run", "calibrate=false"]) == 0
+    longer = [w.replace("steps=200", "steps=400") for w in words if w != "update=static"]
+    assert [g.update for g in plan_words(longer[1:]).groups] == ["static"]
+    assert plan_words([w for w in longer[1:] if w != f"results={tmp_path}"] + [f"results={tmp_path}/new"]
+                      ).groups[0].update == "default"
+    for finished_or_not in (words, [w for w in words if w != "update=static"] + ["update=default"], longer):
+        assert main(finished_or_not + ["--dry-run", "calibrate=false"]) == 0
+        assert "update=" not in capsys.readouterr().err
+    assert main(longer + ["update=default", "--dry-run", "calibrate=false"]) == 0
     notes = [line for line in capsys.readouterr().err.splitlines() if "update=" in line]
     assert len(notes) == 1 and "last ran with update=static, now update=default" in notes[0]
 

@@ -83,6 +83,7 @@ def test_search_space_is_data():
         (["algo=medal", "env=tabletop_manipulation"], "give trials=N"),
         (["algo=medal", "env=nope", "trials=2"], "unknown env 'nope'"),
         (["algo=medal", "env=tabletop_manipulation", "trials=2", "medal.nope=1"], "unknown config key"),
+        (["algo=medal", "env=tabletop_manipulation", "--best"], "no study 'medal_tabletop_manipulation'"),
     ],
 )
 def test_bad_input_one_line_exit_2(args, needle, tmp_path, capsys):
