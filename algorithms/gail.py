@@ -14,7 +14,8 @@ DEFAULTs of section 13.3 (NOT FOUND what MEDAL used), used here:
   replacement) + the SAC batch's pairs as agent pairs (uniform from the replay buffer, which also holds the demos);
   no mixup; demo and policy actions are not clipped (13.4's saturated tabletop grasp is left as is);
 - no early termination on success in either variant and episode ends treated as time-outs (bootstrapped:
-  ``bootstrap_on_truncation=True``), hence no absorbing states;
+  ``bootstrap_on_truncation=True``), hence no absorbing states; the forward demos' ends too (``end_on_success``
+  False: stored truncated, not terminal, so a demo's last step bootstraps as the agent's own steps do);
 - replay buffer <- forward demos (their stored rewards are replaced by D-rewards at sample time);
 - naive GAIL: 300-step pseudo-episodes in the train env, task goal re-drawn per pseudo-episode, hard reset at H_T;
   oracle GAIL: an env reset every H_E steps, uniform random actions in the seed phase (as oracle RL).

@@ -48,7 +48,8 @@ class Naive(Algorithm):
         self.agent = SAC(O, A, [s * 2 for s in seeds], cfg.sac(), device)
         self.buf = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=Stream.REPLAY,
                                        name="replay buffer")
-        self.buf.add_demo(**demo_arrays(demos.forward))
+        # the demos end where success ends an episode: terminal if it does here, else a time-out (GAIL's 13.3)
+        self.buf.add_demo(**demo_arrays(demos.forward), ends_terminal=cfg.end_on_success)
         self.horizon = cfg.episode_steps or task.eval_horizon
         self.rngs = member_rngs(seeds, stream=Stream.TASK_GOALS)  # task-goal draws at cuts, seed-phase actions
         self.goal = np.zeros((E, task.state_dim), dtype=np.float32)

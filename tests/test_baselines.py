@@ -128,6 +128,12 @@ def test_dac_reward_is_the_logit_and_discriminator_learns(demos):
     losses = [m.disc.update(m.expert.sample(32), agent)["discriminator_loss"].item() for _ in range(30)]
     assert losses[-1] < losses[0]
     assert m.cfg.bootstrap_on_truncation and not m.cfg.end_on_success
+    # success ends no GAIL episode, so the demos end in time-outs too: their last steps bootstrap as the agent's do
+    stored = slice(0, int(m.buf.size[0]))
+    n_demos = int(demos.forward.terminals.sum())
+    assert m.buf.data["terminal"][0, stored].sum() == 0 and m.buf.data["truncated"][0, stored].sum() == n_demos
+    naive = _make(Naive, NaiveConfig, demos)  # naive RL ends on success: its demos end terminal
+    assert naive.buf.data["terminal"][0, : int(naive.buf.size[0])].sum() == n_demos
 
 
 def test_bc_loss_decreases_to_near_zero_on_the_demos(demos):

@@ -84,6 +84,13 @@ def test_demos_inserted_as_segments_in_every_member():
     # data that stop without a terminal end with a truncated step
     buf.add_demo(obs[:2], obs[:2, :ACT], np.zeros(2), obs[:2] + [1, 0], np.zeros(2, bool), mask=[False, True])
     assert buf.data["truncated"][1, 9:12].tolist() == [False, False, True] and buf.size.tolist() == [9, 12]
+    # ends_terminal=False: the same segments, each ending truncated (a time-out), none terminal
+    timeouts = SegmentReplayBuffer(1, 100, OBS, ACT)
+    timeouts.add_demo(obs, obs[:, :ACT] + 0.5, terminals.astype(np.float32), obs + [1, 0], terminals,
+                      ends_terminal=False)
+    assert torch.equal(timeouts.data["obs"][0, :9], buf.data["obs"][0, :9])
+    assert timeouts.data["terminal"][0, :9].sum() == 0
+    assert timeouts.data["truncated"][0, :9].tolist() == [False] * 3 + [True] + [False] * 4 + [True]
 
 
 def test_capacity_error_names_buffer():

@@ -217,11 +217,14 @@ class SegmentReplayBuffer(MemberStorage):
         self._append_steps(members, steps, np.zeros(1, dtype=bool))
         self.open[members] = ~(_host_bool(terminal) | _host_bool(truncated))[members]
 
-    def add_demo(self, observations, actions, rewards, next_observations, terminals, mask=None) -> None:
+    def add_demo(self, observations, actions, rewards, next_observations, terminals, mask=None,
+                 ends_terminal: bool = True) -> None:
         """Insert N demo transitions as segments (§3.5), split after every terminal, into every member in ``mask``.
 
         Each segment becomes FIRST(observations[start]) followed by one step per transition (obs = next_observations);
-        its last step is terminal as given, or marked truncated if the data end without a terminal.
+        its last step is terminal as given, or marked truncated if the data end without a terminal. With
+        ``ends_terminal=False`` every segment's last step is stored truncated instead (a time-out: for a method whose
+        own episodes do not end on success, so that its demos bootstrap where its own data do).
         """
         terminals = _host_bool(terminals).reshape(-1)
         n = len(terminals)
@@ -239,13 +242,15 @@ class SegmentReplayBuffer(MemberStorage):
 
         obs = stream(next_observations, transition_pos, self.data["obs"].shape[2:])
         obs[first_pos] = torch.as_tensor(np.asarray(observations)[starts], dtype=torch.float32)
-        truncated = np.zeros(n, dtype=bool)
-        truncated[-1] = not terminals[-1]
+        ends = terminals.copy()
+        ends[-1] = True  # each segment's last transition
+        stored_terminals = terminals if ends_terminal else np.zeros(n, dtype=bool)
+        truncated = ends & ~stored_terminals
         steps = {
             "obs": obs,
             "action": stream(actions, transition_pos, self.data["action"].shape[2:]),
             "reward": stream(rewards, transition_pos, ()),
-            "terminal": stream(terminals, transition_pos, ()),
+            "terminal": stream(stored_terminals, transition_pos, ()),
             "truncated": stream(truncated, transition_pos, ()),
         }
         first = np.zeros(length, dtype=bool)
