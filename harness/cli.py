@@ -246,8 +246,11 @@ def main(argv: list[str] | None = None) -> int:
             parser.parse_args(argv)  # the usual argparse error for what is really unknown
         flags = [w for w in extra if w.startswith("-")]
         if flags:  # name only the unknown flags, not the key=value words that followed them
-            print(f"harness: error: unknown flag(s) {' '.join(flags)} (see `harness {args.cmd} --help`)",
-                  file=sys.stderr)
+            top = [f for f in flags if f.split("=", 1)[0] == "--data-dir"]
+            command = " ".join(["harness", args.cmd, *([args.data_cmd] if getattr(args, "data_cmd", None) else [])])
+            why = (f"{top[0].split('=', 1)[0]} goes before the command (harness --data-dir DIR {args.cmd} ...)" if top
+                   else f"unknown flag(s) {' '.join(flags)} (see `{command} --help`)")
+            print(f"harness: error: {why}", file=sys.stderr)
             return 2
         args.overrides = [*args.overrides, *extra]
     previous = data_mod._explicit_default

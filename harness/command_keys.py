@@ -1,7 +1,7 @@
 """The key=value words of ``harness report``, ``ship``, ``bench`` and ``data scripted``: (default, meaning) per key.
 
-Each command accepts exactly its table's keys, and ``harness <command> --help`` prints the table. Kept free of heavy
-imports (pandas, the envs), since the CLI builds every subcommand's help on each call."""
+Each command accepts exactly its table's keys, and ``harness <command> --help`` prints the table. The CLI builds
+every subcommand's help on each call, so this module imports nothing the CLI does not load anyway."""
 
 from __future__ import annotations
 

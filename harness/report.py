@@ -38,7 +38,6 @@ from harness.tables import table1, table1_csv, table1_latex, table1_markdown
 from harness.words import integer as parse_int
 from harness.words import parse_words
 
-SOURCES = PUBLISHED_SOURCES
 Y_LABELS = {"deployed_success": "Deployed success", "deployed_return": "Deployed return",
             "continuing_reward": "Cumulative training reward", "interventions": "Interventions"}
 KEYS = set(REPORT_KEYS)
@@ -69,7 +68,7 @@ def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: st
         fig = Figure(figsize=(3.4 * ncols, 2.6 * nrows + 0.6), layout="constrained")
         axes = fig.subplots(nrows, ncols, squeeze=False).ravel()
         handles: dict[str, object] = {}
-        dashes = {src: d for src, d in zip(SOURCES, [(4, 2), (1, 1.5)])}
+        dashes = {src: d for src, d in zip(PUBLISHED_SOURCES, [(4, 2), (1, 1.5)])}
         for ax, env in zip(axes, envs):
             c = curves[curves["env"] == env]
             xmax = float(c["step"].max()) if len(c) else 0.0
@@ -177,8 +176,8 @@ def report_cli(overrides: list[str]) -> int:
     window = parse_int("smooth", ov.get("smooth", "1"), 1)
     srcs = [s for s in ov.get("published", "risc_paper").split(",") if s and s != "none"]
     for s in srcs:
-        if s not in SOURCES:
-            raise ConfigError(f"unknown published source {s!r}; known: {', '.join(SOURCES)}, none")
+        if s not in PUBLISHED_SOURCES:
+            raise ConfigError(f"unknown published source {s!r}; known: {', '.join(PUBLISHED_SOURCES)}, none")
 
     warnings: list[str] = []
     df = load(results, warn=warnings.append)

@@ -67,7 +67,7 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
     "env_workers": ("0 (cuda: spare cores)", "worker processes stepping the member envs of each group (0: in the group's process; "
                          "for many seeds per process, e.g. on a GPU)"),
-    "update": ("the mode the run last ran with, else default",
+    "update": ("default; a run resuming from its checkpoint: the mode it last ran with",
                "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed runs), "
                "static (one fixed kernel sequence, equal within rounding), compiled (static + torch.compile; CUDA "
                "graphs on a GPU); a run resumes bit for bit only in the mode it ran with"),
@@ -403,18 +403,23 @@ def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
 
 
 def resumed_update(g: RunSpec) -> str:
-    """The update mode a group runs with when ``update=`` is not given: the one its runs last ran with (when they
-    agree), else ``default``. So the command that started a run resumes it bit for bit, whatever mode it chose."""
+    """The update mode a group runs with when ``update=`` is not given: for a group that resumes from its checkpoint,
+    the one mode its runs last ran with, else ``default``. So the command that started a run resumes it bit for bit,
+    whatever mode it chose, and a run that starts from 0 starts in ``default``."""
     from harness.results import RUN_FILE
 
+    if not g.checkpoint_path().exists():
+        return "default"
     modes = {read_run_record(d / RUN_FILE).get("update", "default") for d in g.member_dirs() if (d / RUN_FILE).exists()}
-    return modes.pop() if len(modes) == 1 else "default"
+    return modes.pop() if len(modes) == 1 and modes <= set(UPDATES) else "default"
 
 
-def _finished(d: Path, steps: int) -> bool:
+def _done(d: Path, steps: int, status: dict[str, Any] | None = None) -> bool:
+    """Whether the run in ``d`` (its ``status``, read if not given) finished ``steps`` or more: running it again
+    trains nothing."""
     from harness.results import read_status
 
-    st = read_status(d) or {}
+    st = (status if status is not None else read_status(d)) or {}
     return st.get("state") == "done" and int(st.get("step", 0)) >= steps
 
 
@@ -429,8 +434,8 @@ def check_results_dirs(plan: Plan) -> None:
             _check_writable(d)
             if p.exists():
                 old = read_run_record(p)
-                quiet = _finished(d, g.steps)  # a finished run does not train again: nothing to note
-                if old.get("update", "default") != g.update and not quiet:
+                done = _done(d, g.steps)  # a finished run does not train again: nothing to note
+                if old.get("update", "default") != g.update and not done and g.checkpoint_path().exists():
                     print(f"harness: note: {p.parent}: this run last ran with update={old.get('update', 'default')}, "
                           f"now update={g.update}: the curve goes on equal within float rounding, not bit for bit "
                           "(give the same update= to resume exactly)", file=sys.stderr)
@@ -438,11 +443,10 @@ def check_results_dirs(plan: Plan) -> None:
                     continue
                 same_protocol = all(old.get(k) == getattr(g, k) for k in ("eval_every", "eval_episodes", "demo_source"))
                 if same_protocol and isinstance(old.get("config"), dict) and only_gained_keys(old["config"], g.config):
-                    gained = sorted(set(g.config) - set(old["config"]))
-                    if quiet:
-                        continue
-                    print(f"harness: note: {p.parent}: the config gained key(s) {', '.join(gained)} since this run "
-                          "started; resuming it under the new code", file=sys.stderr)
+                    if not done:
+                        print(f"harness: note: {p.parent}: the config gained key(s) "
+                              f"{', '.join(sorted(set(g.config) - set(old['config'])))} since this run started; "
+                              "resuming it under the new code", file=sys.stderr)
                     continue
                 raise ConfigError(
                     f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
@@ -544,8 +548,9 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
         **demos_fingerprint(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
         "python": sys.version.split()[0], "update": spec.update,
     }
-    for d, s in zip(spec.member_dirs(), spec.seeds):
-        atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
+    if not all(_done(d, spec.steps) for d in spec.member_dirs()):  # a finished run keeps the record of its run
+        for d, s in zip(spec.member_dirs(), spec.seeds):
+            atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
     cls = ALGORITHMS[spec.algo_class]
     demos = DemoSet(load_demos(spec.env, "forward"), load_demos(spec.env, "reverse"))
     algo = cls(get_spec(spec.env), demos, cls.Config.from_dict(spec.config), list(spec.seeds), torch.device(spec.device))
@@ -581,7 +586,7 @@ def steps_done(spec: RunSpec) -> int:
     for d in spec.member_dirs():
         st = read_status(d) or {}
         step, finished = int(st.get("step", 0)), st.get("state") == "done"
-        if finished and step >= spec.steps:
+        if _done(d, spec.steps, st):
             done += spec.steps
         elif has_checkpoint:  # a finished run's final checkpoint is at its last step, an unfinished one's on the grid
             resume_at = step if finished else step // spec.checkpoint_every * spec.checkpoint_every
@@ -625,8 +630,9 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
     for i, g in enumerate(plan.groups):
         speed = f"  {rates[i]:,.1f} steps/s per seed" if rates.get(i) else ""
         state = "  done" if done[i] == total[i] else f"  {done[i]:,} of {total[i]:,} steps done" if done[i] else ""
+        mode = f"  update={g.update}" if g.update != "default" else ""
         print(f"  {g.env:<22} {g.algo:<12} seeds={','.join(map(str, g.seeds)):<10} steps={g.steps:,} "
-              f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{speed}{state}")
+              f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{mode}{speed}{state}")
     if any(rates[i] is None for i in todo):
         print("estimated time: not measured yet on this machine; `harness run ... --dry-run calibrate=true` (the "
               "default) measures each kind of group for a few seconds (cached)")

@@ -32,7 +32,7 @@ def make_storage(setup: dict[str, Any]):
     """Optuna storage: a journal file (path) or an RDB URL with heartbeats and retried failed trials."""
     optuna = load_optuna()
     spec = setup["storage"]
-    if "://" in spec:
+    if is_rdb(spec):
         kw: dict[str, Any] = {"heartbeat_interval": setup["heartbeat_interval"] or DEFAULT_HEARTBEAT}
         if setup["grace_period"]:
             kw["grace_period"] = setup["grace_period"]
@@ -56,6 +56,11 @@ def make_storage(setup: dict[str, Any]):
     except ImportError:
         backend = optuna.storages.JournalFileStorage(str(path))
     return optuna.storages.JournalStorage(backend)
+
+
+def is_rdb(spec: str) -> bool:
+    """A storage spec names a database (a URL), not a journal file."""
+    return "://" in spec
 
 
 def pg_driver(url: str) -> str:
@@ -82,8 +87,8 @@ def retry_callback_class():
 def open_study(setup: dict[str, Any], create: bool, storage=None):
     """The study of ``setup`` (created when ``create`` and absent) on ``storage`` (default: a new one from setup)."""
     optuna = load_optuna()
-    if storage is None and not create and "://" not in setup["storage"] and not Path(setup["storage"]).is_file():
-        raise ConfigError(f"no study {setup['study']!r} in {setup['storage']} (no such file)")  # and write none
+    if storage is None and not create and not is_rdb(setup["storage"]) and not Path(setup["storage"]).is_file():
+        raise ConfigError(f"no study {setup['study']!r}: no journal file {setup['storage']}")  # and write none
     storage = storage if storage is not None else make_storage(setup)
     try:
         if create:

@@ -2,6 +2,7 @@
 SIGKILL for every registered algorithm, and bad input (one line, exit 2, nothing written)."""
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -212,6 +213,7 @@ def test_seed_lists():
         (["algo=medal", "env=sawyer_door", "keep_every=-1"], "keep_every must be >= 0"),
         (["algo=medal"], "give suite=NAME, or algo=... and env=..."),
         (["algo=medal", "env=sawyer_door", "--dryrun"], "unknown flag(s) --dryrun (see `harness run --help`)"),
+        (["algo=medal", "env=sawyer_door", "--data-dir", "/x"], "--data-dir goes before the command"),
         (["suite=reproduction", "algo=medal", "env=sawyer_peg"],
          "no cell of the suite matches algo=medal env=sawyer_peg"),
     ],
@@ -278,3 +280,19 @@ def test_logger_tensorboard_writes_the_same_rows_once_across_a_resume(tmp_path):
 def test_logger_must_be_known(capsys):
     assert main(["run", "algo=medal", "env=tabletop_manipulation", "logger=wandb", "--dry-run"]) == 2
     assert "unknown logger 'wandb'; known: parquet, tensorboard" in capsys.readouterr().err
+
+
+def test_every_command_lists_its_keys_in_its_help(capsys):
+    """``report``, ``ship``, ``bench`` and ``data scripted`` --help print each key they accept, with its default."""
+    from harness import command_keys as keys
+
+    bench = {k: v for table in keys.BENCH.values() for k, v in table.items()}
+    for words, table in ((["report"], keys.REPORT), (["ship"], keys.SHIP), (["data", "scripted"], keys.SCRIPTED),
+                         (["bench"], bench)):
+        with pytest.raises(SystemExit) as e:
+            main([*words, "--help"])
+        out = capsys.readouterr().out
+        assert e.value.code == 0
+        for key, (default, _) in table.items():
+            assert re.search(rf"^  {key} +.*\[default: {re.escape(default)}\]$", out, re.M), (words, key)
+

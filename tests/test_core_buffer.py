@@ -91,6 +91,8 @@ def test_demos_inserted_as_segments_in_every_member():
     assert torch.equal(timeouts.data["obs"][0, :9], buf.data["obs"][0, :9])
     assert timeouts.data["terminal"][0, :9].sum() == 0
     assert timeouts.data["truncated"][0, :9].tolist() == [False] * 3 + [True] + [False] * 4 + [True]
+    timeouts.add_demo(obs[:2], obs[:2, :ACT], np.zeros(2), obs[:2] + [1, 0], np.zeros(2, bool), ends_terminal=False)
+    assert timeouts.data["truncated"][0, 9:12].tolist() == [False, False, True]  # data without a terminal: as before
 
 
 def test_capacity_error_names_buffer():

@@ -311,6 +311,13 @@ def test_a_run_resumes_in_the_update_mode_it_ran_with_unless_told_otherwise(tmp_
     assert main(longer + ["update=default", "--dry-run", "calibrate=false"]) == 0
     notes = [line for line in capsys.readouterr().err.splitlines() if "update=" in line]
     assert len(notes) == 1 and "last ran with update=static, now update=default" in notes[0]
+    assert main(longer + ["--dry-run", "calibrate=false"]) == 0
+    assert "update=static" in capsys.readouterr().out  # the plan shows the mode it inherited
+    # without its checkpoint the run starts from 0: in the default mode, with nothing to note
+    plan_words(longer[1:]).groups[0].checkpoint_path().unlink()
+    assert [g.update for g in plan_words(longer[1:]).groups] == ["default"]
+    assert main(longer + ["update=default", "--dry-run", "calibrate=false"]) == 0
+    assert "update=" not in capsys.readouterr().err
 
 
 def test_unwritable_results_directory_is_an_input_error(tmp_path, capsys, monkeypatch):
