@@ -548,7 +548,8 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
         **demos_fingerprint(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
         "python": sys.version.split()[0], "update": spec.update,
     }
-    if not all(_done(d, spec.steps) for d in spec.member_dirs()):  # a finished run keeps the record of its run
+    # a finished run keeps the record of its run (unless it has none: a deleted run.yaml is written anew)
+    if not all(_done(d, spec.steps) and (d / RUN_FILE).exists() for d in spec.member_dirs()):
         for d, s in zip(spec.member_dirs(), spec.seeds):
             atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
     cls = ALGORITHMS[spec.algo_class]
