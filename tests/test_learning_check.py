@@ -8,7 +8,7 @@ to ``$HARNESS_LEARNING_CHECK_DIR`` (default ``results/learning_check``) so they 
 Pass: every seed solves the task at some evaluation (deployed success >= ``MIN_PEAK``; published, all 5 seeds do by
 170k steps in both checks), and the mean over both seeds and the evaluations from 200k to 300k steps is at least
 ``MIN_LATE_SUCCESS``. Published, that window averages 0.95 (oracle, door) and 0.99 (RISC, tabletop); single seeds
-collapse for a while after solving the task (published oracle seed 1 is at 0 from 290k to 350k), and with 2 seeds one
+collapse for a while after solving the task (published oracle seed 1 is at 0 from 290k to 330k), and with 2 seeds one
 such collapse over the whole window gives 0.5, hence the bound.
 """
 
