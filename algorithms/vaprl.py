@@ -78,9 +78,9 @@ class VaPRLConfig(GCConfig):
                                 choices=VALUE_CRITIC)
     value_actions: int = 1  # num_action_samples of the original code
     candidates: str = setting("demos", "subgoal candidates: demos = the demo states (fixed), replay = num_candidates "
-                                       "states drawn from the replay buffer at each choice (the original code's flag "
-                                       "default, num_reset_candidates)", choices=CANDIDATES)
-    num_candidates: int = setting(1000, "replay: candidates drawn per choice", ge=1, le=1_000_000)
+                                       "states drawn from the replay buffer once per phase_step_limit steps (the "
+                                       "original code's flag default, num_reset_candidates)", choices=CANDIDATES)
+    num_candidates: int = setting(1000, "replay: candidates per draw", ge=1, le=1_000_000)
     relabel_demos: bool = setting(False, "before training, add every demo prefix once more per later demo state, that "
                                          "state as its goal, cut at its first success (the original code's "
                                          "relabel_offline_data)")
@@ -324,6 +324,7 @@ class VaPRL(GoalConditioned):
         self.relabel_rngs = member_rngs(seeds, Stream.RELABEL)
         self.task_goal = np.zeros_like(self.goal)  # g* of the current / next forward phase
         self.subgoal_index = np.full(self.E, -1)  # last chosen candidate (diagnostic)
+        self.replay_candidates: np.ndarray | None = None  # candidates=replay: this period's draw (E, N, state_dim)
         self._phase: list[list[np.ndarray]] = [[] for _ in range(self.E)]  # [s, a, s'] rows of the open phase
 
     def demo_rows(self, demos: DemoSet) -> list[dict[str, np.ndarray]]:
@@ -382,15 +383,24 @@ class VaPRL(GoalConditioned):
     def current_candidates(self, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per member: candidate states (E, N, state_dim), their L2 distance to mean(rho0) (E, N) and demo time
         index (E, N; NaN for replay states). ``demos``: the fixed demo states; ``replay``: ``num_candidates`` states
-        each member draws from its replay buffer (demos, visited states, relabelled copies), as the original code's
-        ``replay_buffer.get_next(num_reset_candidates)``."""
+        each member drew from its replay buffer (demos, visited states, relabelled copies) at the period's start, as the
+        original code's ``replay_buffer.get_next(num_reset_candidates)``."""
         E, sd = self.E, self.task.state_dim
         if self.cfg.candidates == "demos":
             n = len(self.candidates)
             return (np.broadcast_to(self.candidates, (E, n, sd)), np.broadcast_to(self.l2_distance, (E, n)),
                     np.broadcast_to(self.time_distance.astype(np.float64), (E, n)))
-        states = self.buffer.sample_states(self.cfg.num_candidates, mask)[:, :, :sd].cpu().numpy()
+        if self.replay_candidates is None:
+            self.draw_replay_candidates()
+        states = self.replay_candidates
         return states, np.linalg.norm(states - self.rho0, axis=2), np.full(states.shape[:2], np.nan)
+
+    def draw_replay_candidates(self) -> None:
+        """candidates=replay: every member draws ``num_candidates`` states from its own buffer, kept until the next
+        draw. The original draws once per ``reset_goal_frequency`` iterations (the phase length), so the subgoal
+        choices of one period share a draw; the first draw comes at the first choice."""
+        sd = self.task.state_dim
+        self.replay_candidates = self.buffer.sample_states(self.cfg.num_candidates)[:, :, :sd].cpu().numpy()
 
     def _values(self, obs: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """V(o) for obs (E, N, O): the configured critic, mean over ``value_actions`` policy actions of min_j Q_j."""
@@ -427,6 +437,8 @@ class VaPRL(GoalConditioned):
         out = super().observe(next_obs, hard_reset)
         if self.cfg.curriculum == "lagrangian" and self.step % self.cfg.phase_step_limit == 0:
             self.lagrange.step(self.threshold)
+            if self.cfg.candidates == "replay":
+                self.draw_replay_candidates()
         return out
 
     # -- relabelling -----------------------------------------------------------------------------------
@@ -502,7 +514,8 @@ class VaPRL(GoalConditioned):
         phase = [np.stack(p) if p else np.zeros((0, width), dtype=np.float32) for p in self._phase]
         state = {**super().state_dict(), "relabel_rngs": rng_states(self.relabel_rngs),
                  "sac_value_gens": generator_states(self.sac_value_gens), "lagrange": self.lagrange.state_dict(),
-                 "task_goal": self.task_goal.copy(), "subgoal_index": self.subgoal_index.copy(), "phase": phase}
+                 "task_goal": self.task_goal.copy(), "subgoal_index": self.subgoal_index.copy(), "phase": phase,
+                 "replay_candidates": None if self.replay_candidates is None else self.replay_candidates.copy()}
         if self.value is not None:
             state["value"] = self.value.state_dict()
         return state
@@ -517,6 +530,8 @@ class VaPRL(GoalConditioned):
         self.task_goal[:] = state["task_goal"]
         self.subgoal_index[:] = state["subgoal_index"]
         self._phase = [list(p) for p in state["phase"]]
+        cands = state.get("replay_candidates")
+        self.replay_candidates = None if cands is None else np.array(cands)
 
     def metrics(self) -> dict[str, np.ndarray]:
         """As the goal-conditioned base, plus curriculum/*: value and distances (L2 to rho0, time index) of the

@@ -502,26 +502,41 @@ def test_vaprl_task_goal_keeps_its_test_while_other_goals_take_the_agents():
     assert v.solved(v.candidates[None]).any()
 
 
-def test_vaprl_replay_candidates_are_states_from_each_members_buffer():
-    """candidates=replay (the original code's num_reset_candidates): each choice draws fresh states from the member's
-    own replay buffer; the Lagrangian rule then runs on their L2 distance to mean(rho0)."""
+def test_vaprl_replay_candidates_are_states_from_each_members_buffer_drawn_once_per_period():
+    """candidates=replay (the original code's num_reset_candidates): every phase_step_limit steps (the original's
+    reset_goal_frequency) each member draws states from its own replay buffer, and the subgoal choices of the period
+    share that draw; the Lagrangian rule then runs on their L2 distance to mean(rho0). The draw is checkpointed."""
+    from harness.protocol import Interaction
+
     v = _make(VaPRL, VaPRLConfig, seeds=(0, 1), candidates="replay", num_candidates=64, seed_steps=10**6,
               phase_step_limit=20)
-    _run(v, ENV, (0, 1), 45)  # a forward and a backward phase: visited states join the demos in the buffers
+    loop = Interaction(ENV, [0, 1])
+    loop.start(v)
+    for _ in range(45):  # a forward and a backward phase: visited states join the demos in the buffers
+        loop.step(v)
     sd, mask = v.task.state_dim, np.ones(2, bool)
     first, l2, time = v.current_candidates(mask)
-    second, _, _ = v.current_candidates(mask)
-    assert first.shape == (2, 64, sd) and np.isnan(time).all() and not np.array_equal(first, second)  # fresh draws
+    assert first.shape == (2, 64, sd) and np.isnan(time).all()
     for i in range(2):  # every candidate is a state member i stored
         stored = v.buffer.data["obs"][i, : v.buffer.size[i], :sd].numpy()
         assert all((np.abs(stored - c).max(axis=1) == 0).any() for c in first[i])
     np.testing.assert_allclose(l2, np.linalg.norm(first - v.rho0, axis=2), rtol=1e-6)
+    for _ in range(14):  # to step 59: the same period, the same candidates
+        loop.step(v)
+    np.testing.assert_array_equal(v.current_candidates(mask)[0], first)
     v.direction[:] = BACKWARD
     v._values = lambda obs, mask: np.zeros(obs.shape[:2])  # lambda 0 and equal values: the state nearest rho0
-    before = v.buffer.generators[0].get_state()
     goals = v.phase_goals(mask)
-    assert not torch.equal(before, v.buffer.generators[0].get_state())  # the draw came from the member's stream
-    assert goals.shape == (2, sd)
+    for i in range(2):
+        assert (np.abs(first[i] - goals[i]).max(axis=1) == 0).any()  # chosen from the period's draw
+    clone = _make(VaPRL, VaPRLConfig, seeds=(0, 1), candidates="replay", num_candidates=64, seed_steps=10**6,
+                  phase_step_limit=20)
+    clone.load_state_dict(v.state_dict())
+    np.testing.assert_array_equal(clone.replay_candidates, first)
+    before = v.buffer.generators[0].get_state()
+    loop.step(v)  # step 60: a new period draws afresh, from the member's sampling stream
+    assert not torch.equal(before, v.buffer.generators[0].get_state())
+    assert not np.array_equal(v.current_candidates(mask)[0], first)
     with pytest.raises(ValueError, match="candidates=replay needs curriculum=lagrangian"):
         VaPRLConfig(candidates="replay", curriculum="nearest_feasible").validate()
 
