@@ -28,7 +28,8 @@ from harness.words import ConfigError
 
 RAY_MAX_RETRIES = 3
 #: environment variables a Ray worker needs to see as the driver does
-FORWARDED_ENV = ("MUJOCO_GL", "HARNESS_DATA_DIR", "HARNESS_CACHE_DIR", "OMP_NUM_THREADS", "PYTHONHASHSEED")
+FORWARDED_ENV = ("MUJOCO_GL", "HARNESS_DATA_DIR", "HARNESS_CACHE_DIR", "HARNESS_STATE_DIR", "OMP_NUM_THREADS",
+                 "PYTHONHASHSEED")
 #: test hook: if set (to a marker path), a Ray task SIGKILLs its own worker process once, right after
 #: its group's first checkpoint appears, to check that Ray's retry resumes the group
 TEST_KILL_ENV = "HARNESS_TEST_RAY_KILL_ONCE"

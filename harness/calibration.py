@@ -2,7 +2,7 @@
 
 A calibration trains one group's algorithm (its own config, its members, the threads a worker gets) for a few hundred
 steps past a short seed phase, as ``harness bench train`` does, and records steps/s per member. Results are cached in
-``<cache>/calibration.json`` per (machine, torch, device, threads, algorithm, env, members, config), so only the
+``<state>/calibration.json`` (``harness.data.state_dir``) per (machine, torch, device, threads, algorithm, env, members, config), so only the
 first dry-run of a new kind of group pays for it (seconds per group). :func:`estimate` then packs the groups onto the
 workers, longest first (the order a pool runs them in, give or take), and returns the time until the last finishes.
 """
@@ -25,9 +25,9 @@ WARMUP, MEASURE = 120, 120  # seed-phase steps (no updates), then timed steps wi
 
 
 def _cache_file() -> Path:
-    from harness.data import cache_dir
+    from harness.data import state_dir
 
-    return cache_dir() / "calibration.json"
+    return state_dir() / "calibration.json"
 
 
 def machine() -> str:

@@ -47,6 +47,14 @@ def cache_dir() -> Path:
     return Path(env).expanduser() if env else PROJECT_ROOT / ".cache" / "earl"
 
 
+def state_dir() -> Path:
+    """Where the harness keeps what it measured on this machine (the speed calibration of ``--dry-run``):
+    ``HARNESS_STATE_DIR``, else the project cache. Kept apart from the data so that tests (and anyone else) can point
+    it elsewhere without losing the data."""
+    env = os.environ.get("HARNESS_STATE_DIR")
+    return Path(env).expanduser() if env else cache_dir()
+
+
 def candidate_dirs(explicit: str | os.PathLike | None = None) -> list[tuple[str, Path]]:
     """The places searched, in order, with a label each. An explicit directory (``--data-dir`` or
     ``HARNESS_DATA_DIR``) is the only place searched: a user who names one must get that data or an error."""

@@ -1,6 +1,7 @@
 """`harness run` end to end: the smoke suite over the whole registry, seed batching, resume after
 SIGKILL for every registered algorithm, and bad input (one line, exit 2, nothing written)."""
 
+import json
 import os
 import re
 import signal
@@ -84,9 +85,28 @@ def test_resume_after_sigkill(algo, tmp_path):
 
 
 def test_dry_run_prints_plan(tmp_path, capsys):
-    assert main(["run", "suite=earl_sparse", f"results={tmp_path}", "--dry-run", "calibrate=false"]) == 0
+    """Both cases on purpose: no calibration on record (each test has an empty state directory, whatever dry runs
+    the user made before), then one this test writes itself."""
+    from harness import calibration
+    from harness.data import state_dir
+    from harness.runner import _fmt_time, plan_words
+
+    words = ["run", "suite=earl_sparse", f"results={tmp_path}"]
+    assert main([*words, "--dry-run", "calibrate=false"]) == 0
     out = capsys.readouterr()
     assert "estimated time: not measured yet on this machine" in out.out and "sawyer_peg" in out.out
+    assert not list(tmp_path.iterdir()) and not (state_dir() / "calibration.json").exists()
+
+    plan = plan_words(words[1:])
+    threads = calibration.worker_threads(plan.workers)
+    cache = {calibration.key(g, threads): 100.0 for g in plan.groups}  # 100 steps/s per seed, every group
+    (state_dir() / "calibration.json").parent.mkdir(parents=True)
+    (state_dir() / "calibration.json").write_text(json.dumps(cache))
+    assert main([*words, "--dry-run", "calibrate=false"]) == 0
+    out = capsys.readouterr().out
+    assert "not measured yet" not in out and out.count("100.0 steps/s per seed") == len(plan.groups)
+    work = [(g.steps, 100.0) for g in plan.groups]  # steps per member of each group, none done
+    assert f"estimated time: {_fmt_time(calibration.estimate(work, plan.workers))} on" in out
     assert not list(tmp_path.iterdir())
 
 
