@@ -145,6 +145,14 @@ def table1_for(root, sig, sel: Sel, step, last_k, published) -> pd.DataFrame:
                   published=PUBLISHED_TABLE1 if published else None)
 
 
+@st.cache_data(show_spinner="Checking the reproduction cells…", max_entries=4)
+def evidence_for(root, sig) -> pd.DataFrame:
+    from harness.evidence import table1_evidence
+
+    df, _ = load_results(root, sig)
+    return table1_evidence(df, load_published_curves()[0])
+
+
 @st.cache_data(show_spinner=False, max_entries=32)
 def scores_for(root, sig, sel: Sel, step, last_k) -> pd.DataFrame:
     return A.final_scores(filtered(root, sig, sel), "deployed_success", step=step, last_k=last_k)
@@ -333,6 +341,14 @@ def tab_table1(root, sig, sel: Sel) -> None:
                        key="dl_tex")
     with st.expander("numbers"):
         st.dataframe(t, hide_index=True)
+    from harness.evidence import evidence_markdown
+
+    st.subheader("Which cells the reproduction checks verify")
+    st.markdown(evidence_markdown(evidence_for(root, sig)), unsafe_allow_html=True)
+    st.caption("Per Table-1 cell, the reproduction cell that checks it (suites/reproduction.yaml, suites/table1.yaml) "
+               "in this results directory, whatever the sidebar selects: its seeds and budget, the final-window "
+               "verdicts, the whole-curve check (every 100k window) and the first-success check. verified: every "
+               "check passes; fails: one fails; a calibration window is not evidence. docs/reproduction.md.")
 
 
 def tab_aggregates(root, sig, sel: Sel) -> None:
@@ -529,6 +545,7 @@ def cell_chart(ladder, cell, ours: pd.DataFrame, pub: pd.DataFrame | None, verdi
 
 
 def tab_reproduction(root: str, sig: tuple) -> None:
+    from harness import ladder_provenance as P
     from harness import reproduction as R
 
     suites = reproduction_suites()
@@ -539,27 +556,41 @@ def tab_reproduction(root: str, sig: tuple) -> None:
     ladder = R.load_ladder(name)
     df, _ = load_results(root, sig)
     ours = df if len(df) else pd.DataFrame(columns=["suite", "env", "algo", "seed", "step", "metric", "value"])
-    t = R.ladder_table(ladder, ours)
+    pub, err = load_published_curves()
+    t = R.ladder_table(ladder, ours, published=pub)
     done = t["status"].isin(["pass", "fail"])
     c1, c2, c3, c4 = st.columns(4)
-    c1.metric("checks", len(t))
+    c1.metric("final-window checks", len(t))
     c2.metric("pass", int((t["status"] == "pass").sum()))
     c3.metric("fail", int((t["status"] == "fail").sum()))
     c4.metric("running", int((~done).sum()))
+    if "curve_status" in t:
+        cells = t.drop_duplicates(["method", "env", "config"])
+        st.caption("Whole-curve checks, per cell: " + ", ".join(
+            f"{int((cells[c] == s).sum())} {s}" for c in ("curve_status",) for s in ("pass", "fail", "running"))
+            + "; first success: " + ", ".join(f"{int((cells['first_success_status'] == s).sum())} {s}"
+                                              for s in ("pass", "fail", "running")))
     view = t.assign(ours_per_seed=[", ".join("-" if math.isnan(x) else f"{x:.2f}" for x in v) for v in t["ours_per_seed"]],
                     published_range=[f"{a:.2f}-{b:.2f}" for a, b in zip(t["published_min"], t["published_max"])],
                     accepted=[f"{a:.2f}-{b:.2f}" for a, b in t["band"]])
+    whole = ["curve", "first_success"] if "curve" in t else []
     st.dataframe(view[["method", "env", "budget", "seeds", "window", "published", "published_range", "accepted", "ours",
-                       "ours_per_seed", "verdict"]], hide_index=True,
+                       "ours_per_seed", "verdict", *whole]], hide_index=True,
                  column_config={"published": st.column_config.NumberColumn("published mean", format="%.2f"),
                                 "ours": st.column_config.NumberColumn("ours: seed mean", format="%.2f"),
-                                "budget": st.column_config.NumberColumn("budget", format="%d")})
+                                "budget": st.column_config.NumberColumn("budget", format="%d"),
+                                "verdict": st.column_config.TextColumn("final window"),
+                                "curve": st.column_config.TextColumn("whole curve (every 100k window)"),
+                                "first_success": st.column_config.TextColumn("first success (>= 0.5)")})
     st.caption(f"A check passes when our seed-mean of the window means lies in [published min - {ladder.widen:g}, "
                f"published max + {ladder.widen:g}] (the per-seed range of the published seeds, widened); it is running "
                "until every seed has all its evaluations in the window (\"pass whatever the rest scores\": no outcome of "
-               "the evaluations still to come can turn it). docs/reproduction.md explains the rule.")
+               "the evaluations still to come can turn it). The whole-curve check applies the same band to every 100k "
+               "window up to the budget and allows as many windows out as a faithful method exceeds with probability "
+               f"<= {ladder.rule.alpha:g}; the first-success check compares the seed-mean step of the first evaluation "
+               ">= 0.5 with the published seeds'. docs/reproduction.md explains the rules.")
     with st.expander("What the runs cost"):
-        cost = R.ladder_cost(ladder, ours)
+        cost = P.ladder_cost(ladder, ours)
         st.dataframe(cost, hide_index=True, column_config={
             "started": st.column_config.NumberColumn("seeds started"),
             "steps": st.column_config.NumberColumn("env steps", format="%d"),
@@ -569,19 +600,20 @@ def tab_reproduction(root: str, sig: tuple) -> None:
                    "sharing its process (core-hours on a CPU with one torch thread per process); rows redone after a "
                    "lost checkpoint count once.")
     with st.expander("Which commits produced the rows"):
-        commits = R.ladder_commits(ladder, ours)
-        st.dataframe(commits.assign(commits=commits["commits"].map(R.commits_text)), hide_index=True,
+        commits = P.ladder_commits(ladder, ours)
+        st.dataframe(commits.assign(commits=commits["commits"].map(P.commits_text)), hide_index=True,
                      column_config={"commits": st.column_config.TextColumn("commits (steps evaluated)")})
         st.caption("The git SHA each evaluation row carries: a run resumed across commits lists each commit with the "
                    "steps it evaluated; -dirty marks a tree with uncommitted changes.")
-    pub, err = load_published_curves()
     if pub is None:
-        st.info(f"Published curves unavailable: {err}")
+        st.info(f"Published curves unavailable (no whole-curve verdicts): {err}")
     for i in range(0, len(ladder.cells), 3):
         cols = st.columns(3)
         for col, cell in zip(cols, ladder.cells[i:i + 3]):
             rows = t[(t["method"] == cell.name) & (t["env"] == cell.env)]
             verdicts = [f"{w}: {v}" for w, v in zip(rows["window"], rows["verdict"])]
+            if "curve" in rows and len(rows):
+                verdicts += [f"whole curve: {rows['curve'].iloc[0]}", f"first success: {rows['first_success'].iloc[0]}"]
             with col:
                 st.altair_chart(cell_chart(ladder, cell, ours, pub, verdicts), width="stretch", height=330)
 

@@ -11,6 +11,8 @@ Writes to ``out`` (default ``<results>/report/<suite or all>``):
   beside the MEDAL paper's Table 1 and the difference, best per env in bold
   (``step=last``: each run's last evaluation, the default; ``matched``: the largest step every run
   in the env reached; ``N``: the last evaluation at or before step N);
+- ``table1_evidence.md``: per Table-1 cell, whether the results verify it, at which budget and with which
+  verdicts (final window, whole curve, first success; :mod:`harness.evidence`), from every ladder suite's rows;
 - ``aggregates.csv``: IQM and mean across envs with 95% stratified-bootstrap CIs;
 - for a suite with ``cells`` (``suites/reproduction.yaml``): ``reproduction.png``/``.pdf`` and
   ``reproduction.md``/``.csv``, the verdict of every check (``harness.reproduction``); ``doc=FILE.md``
@@ -31,6 +33,7 @@ import pandas as pd
 from harness import analysis as A
 from harness.command_keys import CURVE_METRICS, PUBLISHED_SOURCES
 from harness.command_keys import REPORT as REPORT_KEYS
+from harness.evidence import evidence_markdown, table1_evidence
 from harness.labels import algo_label, env_label, method_color, order_algos, order_envs
 from harness.stats import aggregate_scores
 from harness.suites import ConfigError, load_suite
@@ -120,6 +123,7 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
     cost, :func:`harness.reproduction.ladder_cost`, and the commits that produced the rows,
     :func:`harness.reproduction.ladder_commits`); with ``doc``, those tables also replace the
     ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
+    from harness import ladder_provenance as P
     from harness import reproduction as R
     from harness.data import DataNotFoundError
     from harness.results import load_published
@@ -136,10 +140,10 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
         p = out / f"reproduction.{ext}"
         fig.savefig(p, dpi=150 if ext == "png" else None, bbox_inches="tight")
         written.append(p)
-    t = R.ladder_table(ladder, df)
-    tables = (R.table_markdown(t) + "\nWhat the runs cost (the shipped rows):\n\n" + R.cost_markdown(R.ladder_cost(ladder, df))
+    t = R.ladder_table(ladder, df, published=published)
+    tables = (R.table_markdown(t) + "\nWhat the runs cost (the shipped rows):\n\n" + P.cost_markdown(P.ladder_cost(ladder, df))
               + "\nThe commits that produced the rows (`git_sha`), with the steps each one evaluated:\n\n"
-              + R.commits_markdown(R.ladder_commits(ladder, df)))
+              + P.commits_markdown(P.ladder_commits(ladder, df)))
     (out / "reproduction.md").write_text(tables)
     if doc:  # the tables into the document, the figure beside it as <suite>.png
         path = Path(doc)
@@ -185,6 +189,7 @@ def report_cli(overrides: list[str]) -> int:
         print(f"harness report: warning: {w}", file=sys.stderr)
     if df.empty:
         raise ConfigError(f"no results (evals.parquet) under {results}; run `harness run suite=...` first")
+    everything = df  # Table 1's evidence reads every ladder suite's rows, whatever suite= selects
     if not (suite or "").startswith("tune_"):
         df = df[~A.is_tuning(df)]  # harness tune trials: only when their suite is named
         if df.empty:
@@ -229,6 +234,15 @@ def report_cli(overrides: list[str]) -> int:
                        ("table1.csv", table1_csv(t))):
         (out / name).write_text(text)
         written.append(out / name)
+
+    try:
+        published_all = load_published()
+    except (DataNotFoundError, OSError):
+        published_all = None  # the evidence then has the final-window verdicts only
+    (out / "table1_evidence.md").write_text(
+        "Which Table-1 cells the results verify (reproduction cells, docs/reproduction.md):\n\n"
+        + evidence_markdown(table1_evidence(everything, published_all)))
+    written.append(out / "table1_evidence.md")
 
     scores = A.final_scores(df, step=step)
     agg = aggregate_scores(scores)

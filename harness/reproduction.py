@@ -12,11 +12,13 @@ A check is ``running`` until every seed of the cell has all its evaluations in t
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
+from harness import curve_checks as C
+from harness.curve_checks import CurveRule
 from harness.suites import ConfigError, load_suite
 
 METRIC = "deployed_success"
@@ -31,6 +33,7 @@ class Check:
     mean: float
     min: float
     max: float
+    calibration: bool = False  # the window a configuration was chosen on: a calibration, not independent evidence
 
 
 @dataclass(frozen=True)
@@ -49,6 +52,7 @@ class Ladder:
     suite: str
     cells: tuple[Cell, ...]
     widen: float
+    rule: CurveRule = field(default_factory=CurveRule)  # the whole-curve checks' rule (harness.curve_checks)
 
 
 def _seed_list(v) -> tuple[int, ...]:
@@ -63,8 +67,18 @@ def load_ladder(suite: str) -> Ladder:
     if "cells" not in d:
         raise ConfigError(f"suite {name!r} has no 'cells': it is not a reproduction suite")
     crit = d.get("criterion") or {}
-    if not isinstance(crit, dict) or set(crit) - {"widen"}:
-        raise ConfigError(f"suite {name!r}: criterion must be {{widen: <number>}}")
+    if not isinstance(crit, dict) or set(crit) - {"widen", "curve_alpha", "first_success_widen"}:
+        raise ConfigError(f"suite {name!r}: criterion must be {{widen: <number>}}, optionally with curve_alpha: "
+                          "<probability> and first_success_widen: <steps>")
+    try:
+        widen = float(crit.get("widen", 0.1))
+        rule = CurveRule(widen, float(crit.get("curve_alpha", CurveRule.alpha)),
+                         int(crit.get("first_success_widen", CurveRule.fs_widen)), int(d.get("eval_every", 10_000)))
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"suite {name!r}: criterion: {e}") from None
+    if not (0 <= widen <= 1 and 0 < rule.alpha < 1 and rule.fs_widen >= 0):
+        raise ConfigError(f"suite {name!r}: criterion needs 0 <= widen <= 1, 0 < curve_alpha < 1, "
+                          "first_success_widen >= 0")
     cells = []
     for n, c in enumerate(d["cells"]):
         checks = []
@@ -73,7 +87,7 @@ def load_ladder(suite: str) -> Ladder:
                 lo, hi = (int(x) for x in k["window"])
                 p = k["published"]
                 checks.append(Check(lo, hi, str(p["source"]), str(p.get("algo", c["algo"])), float(p["mean"]),
-                                    float(p["min"]), float(p["max"])))
+                                    float(p["min"]), float(p["max"]), bool(k.get("calibration", False))))
             except (KeyError, TypeError, ValueError) as e:
                 raise ConfigError(f"suite {name!r}, cell {n + 1}: a check needs window: [lo, hi] and published: "
                                   f"{{source, mean, min, max}} ({type(e).__name__}: {e})") from None
@@ -82,7 +96,7 @@ def load_ladder(suite: str) -> Ladder:
         cells.append(Cell(str(c.get("name") or c["algo"]), str(c["algo"]), str(c["env"]), int(c["steps"]),
                           _seed_list(c.get("seeds", d.get("seeds", 1))), tuple(checks),
                           tuple(sorted((c.get("config") or {}).items()))))
-    return Ladder(name, tuple(cells), float(crit.get("widen", 0.1)))
+    return Ladder(name, tuple(cells), widen, rule)
 
 
 def window_means(curves: pd.DataFrame, lo: int, hi: int) -> pd.Series:
@@ -164,14 +178,29 @@ def verdict_text(v: dict, check: Check, steps: int, short: bool = False) -> str:
             return f"running: {seeds} started, the furthest at {v['furthest']:,} of {steps:,} steps"
         return "not started"
     side = "" if v["status"] == "pass" else (" (too weak)" if v["ours"] < v["lower"] else " (too strong)")
-    return f"{v['status']}{side}"
+    return f"{v['status']}{side}" + (" (calibration: not independent evidence)" if check.calibration and not short
+                                     else " (calibration)" if check.calibration else "")
 
 
-def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000) -> pd.DataFrame:
-    """One row per (cell, check): method, env, window, published mean (min-max), ours (per seed), verdict."""
+def cell_published(published: pd.DataFrame, cell: Cell) -> pd.DataFrame:
+    """The published per-seed curves a cell's whole-curve checks compare with (its checks' source and method)."""
+    source, algo = (cell.checks[0].source, cell.checks[0].algo) if cell.checks else ("risc_paper", cell.algo)
+    return published_curves(published, Check(0, 0, source, algo, 0, 0, 0), cell.env)
+
+
+def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000,
+                 published: pd.DataFrame | None = None) -> pd.DataFrame:
+    """One row per (cell, check): method, env, window, published mean (min-max), ours (per seed), verdict; with the
+    published curves also the cell's whole-curve verdicts (``curve``, ``first_success``: texts; ``curve_status``,
+    ``first_success_status``), repeated on each row of the cell."""
     rows = []
     for cell in ladder.cells:
         curves = our_curves(ours, ladder.suite, cell)
+        whole = {}
+        if published is not None:
+            w = C.whole_curve_verdict(curves, cell_published(published, cell), cell.steps, cell.seeds, ladder.rule)
+            whole = {"curve": C.whole_curve_text(w), "curve_status": w["status"],
+                     "first_success": C.first_success_text(w), "first_success_status": w["first_success_status"]}
         for check in cell.checks:
             v = verdict(curves, cell, check, ladder.widen, eval_every)
             rows.append({
@@ -181,86 +210,9 @@ def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000) -
                 "published": check.mean, "published_min": check.min, "published_max": check.max,
                 "ours": v["ours"], "ours_per_seed": v["ours_per_seed"], "band": (v["lower"], v["upper"]),
                 "reached": v["reached"], "status": v["status"], "verdict": verdict_text(v, check, cell.steps),
+                "calibration": check.calibration, **whole,
             })
     return pd.DataFrame(rows)
-
-
-def ladder_cost(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
-    """What each cell's runs cost, from their evaluation rows: seeds started, env steps done (summed over seeds),
-    process-hours (each seed's last ``wall_s``, divided by the seeds its process trained as members: on a CPU with one
-    torch thread per process, core-hours) and the median steps/s per seed. Only the rows that exist count: a run redone
-    from 0 after its checkpoint was lost counts once."""
-    rows = []
-    for cell in ladder.cells:
-        o = cell_rows(ours, ladder.suite, cell)
-        started, steps, hours, rates = 0, 0, 0.0, []
-        for s in cell.seeds:
-            r = o[o["seed"] == s]
-            if r.empty:
-                continue
-            started, steps = started + 1, steps + int(r["step"].max())
-            wall = r[r["metric"] == "wall_s"]
-            if len(wall):
-                last = wall.loc[wall["step"].idxmax()]
-                members = last.get("members", 1)
-                hours += float(last["value"]) / (int(members) if pd.notna(members) and members > 0 else 1) / 3600
-            rate = r.loc[(r["metric"] == "steps_per_s") & (r["step"] > 0), "value"]
-            rates += [v for v in rate if np.isfinite(v) and v > 0]
-        rows.append({"method": cell.name, "env": cell.env, "seeds": len(cell.seeds), "started": started,
-                     "steps": steps, "process_hours": hours,
-                     "steps_per_s": float(np.median(rates)) if rates else float("nan")})
-    return pd.DataFrame(rows)
-
-
-def cost_markdown(c: pd.DataFrame) -> str:
-    """:func:`ladder_cost` as a Markdown table with a total row."""
-    lines = ["| method | env | seeds started | env steps | process-hours | steps/s per seed (median) |",
-             "|---|---|---|---|---|---|"]
-    for r in c.itertuples():
-        rate = "-" if np.isnan(r.steps_per_s) else f"{r.steps_per_s:.0f}"
-        lines.append(f"| {r.method} | {r.env} | {r.started} of {r.seeds} | {r.steps:,} | {r.process_hours:.1f} | {rate} |")
-    lines.append(f"| total | | {int(c['started'].sum())} of {int(c['seeds'].sum())} | {int(c['steps'].sum()):,} | "
-                 f"{c['process_hours'].sum():.1f} | |")
-    return "\n".join(lines) + "\n"
-
-
-def ladder_commits(ladder: Ladder, ours: pd.DataFrame) -> pd.DataFrame:
-    """Which code produced each seed's rows: one row per started seed of each cell with ``commits``, a list of
-    (git SHA, first step, last step), one per stretch of consecutive evaluations made by the same SHA, in step order.
-    A run resumed across commits lists each commit with the evaluations it made (a commit it went back to, again);
-    ``-dirty`` marks a tree with uncommitted changes."""
-    rows = []
-    for cell in ladder.cells:
-        o = cell_rows(ours, ladder.suite, cell)
-        for s in cell.seeds:
-            r = o[o["seed"] == s]
-            if r.empty:
-                continue
-            r = r.sort_values("step", kind="stable")
-            shas = r["git_sha"].fillna("unknown")
-            stretch = (shas != shas.shift()).cumsum()  # a new stretch wherever the SHA changes along the steps
-            spans = r["step"].groupby(stretch).agg(["min", "max"]).assign(sha=shas.groupby(stretch).first())
-            rows.append({"method": cell.name, "env": cell.env, "seed": s,
-                         "commits": [(sha, int(lo), int(hi)) for lo, hi, sha in spans.itertuples(index=False)]})
-    return pd.DataFrame(rows, columns=["method", "env", "seed", "commits"])
-
-
-def _steps(n: int) -> str:
-    return f"{n / 1000:g}k" if n else "0"
-
-
-def commits_text(commits: list[tuple[str, int, int]], quote: str = "") -> str:
-    """One seed's commits as ``abc1234 (0-220k), def5678 (230k-740k)``: short SHAs, each in ``quote``."""
-    return ", ".join(f"{quote}{sha[:7]}{'-dirty' if sha.endswith('-dirty') else ''}{quote} "
-                     f"({_steps(lo)}{'' if lo == hi else '-' + _steps(hi)})" for sha, lo, hi in commits)
-
-
-def commits_markdown(c: pd.DataFrame) -> str:
-    """:func:`ladder_commits` as a Markdown table, short SHAs with the steps each one evaluated."""
-    lines = ["| method | env | seed | commits (steps evaluated) |", "|---|---|---|---|"]
-    for r in c.itertuples():
-        lines.append(f"| {r.method} | {r.env} | {r.seed} | {commits_text(r.commits, '`')} |")
-    return "\n".join(lines) + "\n"
 
 
 def _yaml_value(v) -> str:
@@ -269,17 +221,22 @@ def _yaml_value(v) -> str:
 
 def table_markdown(t: pd.DataFrame) -> str:
     """The ladder as a Markdown table (ours per seed, published mean and per-seed range, verdict); a ``config``
-    column when some cell is a variant."""
+    column when some cell is a variant; the whole-curve verdicts, once per cell, when ``t`` has them."""
     variants = bool(t["config"].str.len().any()) if len(t) else False
+    whole = "curve" in t
     head = "| method | " + ("config | " if variants else "") + "env | budget | window | published mean (per-seed range) " \
-           "| ours: mean (per seed) | verdict |"
+           "| ours: mean (per seed) | verdict |" + (" whole curve | first success |" if whole else "")
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
+    seen = set()
     for r in t.itertuples():
         seeds = ", ".join("-" if np.isnan(x) else f"{x:.2f}" for x in r.ours_per_seed)
         ours = "-" if np.isnan(r.ours) else f"{r.ours:.2f}"
         config = f"{r.config or '-'} | " if variants else ""
+        first = (r.method, r.env, r.config) not in seen
+        seen.add((r.method, r.env, r.config))
+        extra = (f" {r.curve} | {r.first_success} |" if first else " | |") if whole else ""
         lines.append(f"| {r.method} | {config}{r.env} | {r.budget / 1e6:g}M | {r.window} | {r.published:.2f} "
-                     f"({r.published_min:.2f}-{r.published_max:.2f}) | {ours} ({seeds}) | {r.verdict} |")
+                     f"({r.published_min:.2f}-{r.published_max:.2f}) | {ours} ({seeds}) | {r.verdict} |{extra}")
     return "\n".join(lines) + "\n"
 
 

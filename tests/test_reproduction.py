@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from harness import ladder_provenance as P
 from harness import reproduction as R
 from harness.results import run_dir
 from harness.runner import plan_words
@@ -18,7 +19,7 @@ from harness.synthetic import write_run
 
 from .conftest import requires_data
 
-SUITES = ("reproduction", "vaprl_ablation")
+SUITES = ("reproduction", "vaprl_ablation", "table1")
 
 
 def _curves(values: dict[int, list[float]], start: int = 10_000, every: int = 10_000) -> pd.DataFrame:
@@ -95,12 +96,13 @@ def test_suite_published_numbers_match_the_published_curves(suite):
         for check in cell.checks:
             p = R.published_curves(pub, check, cell.env)
             per_seed = R.window_means(p, check.lo, check.hi)
-            assert len(per_seed) == 5 and (p["step"] > check.lo).any()
+            # 5 published seeds, but 4 for MEDAL peg's 6.5M-6.6M (one published seed has no evaluations there)
+            assert len(per_seed) == (4 if (cell.algo, cell.env, check.lo) == ("medal", "sawyer_peg", 6_500_000) else 5)
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
             n += 1
     # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 22 cells (two of them: two windows)
-    assert n == {"reproduction": 10, "vaprl_ablation": 24}[suite]
+    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12}[suite]
 
 
 @requires_data
@@ -212,16 +214,16 @@ def test_ladder_table_and_report(tmp_path, capsys):
     # the cost: each seed's last wall_s over its process's members (3 in the fixture), env steps summed over seeds
     assert "| risc | tabletop_manipulation | 2 of 2 | 600,000 | 2.8 | 20 |" in md  # 2 x 15,000 s / 3
     assert "| fbrl | tabletop_manipulation | 0 of 2 | 0 | 0.0 | - |" in md
-    cost = R.ladder_cost(R.load_ladder("reproduction"), load(root)).set_index(["method", "env"])
+    cost = P.ladder_cost(R.load_ladder("reproduction"), load(root)).set_index(["method", "env"])
     assert cost.loc[("medal", "tabletop_manipulation"), "process_hours"] == pytest.approx(3 * 2_500 / 3 / 3600)
     assert "| total | | 7 of 19 | 1,350,000 |" in md
     # the commits that produced each seed's rows, with the steps each evaluated
     assert "| risc | tabletop_manipulation | 0 | `0000000` (0-300k) |" in md
     assert "| risc | tabletop_manipulation | 1 | `0000000` (0-150k), `abcdef0-dirty` (160k-250k), `0000000` (260k-300k) |" in md
     assert "| medal | tabletop_manipulation | 2 | `0000000` (0-50k) |" in md
-    commits = R.ladder_commits(R.load_ladder("reproduction"), load(root))
+    commits = P.ladder_commits(R.load_ladder("reproduction"), load(root))
     assert len(commits) == 7 and sorted(commits["commits"].map(len)) == [1, 1, 1, 1, 1, 1, 3]
-    assert R.commits_text([("f" * 40, 50_000, 50_000)]) == "fffffff (50k)"
+    assert P.commits_text([("f" * 40, 50_000, 50_000)]) == "fffffff (50k)"
     assert (out / "reproduction.png").stat().st_size > 10_000
     csv = pd.read_csv(out / "reproduction.csv")
     assert list(csv["status"]).count("pass") == 1 and list(csv["status"]).count("fail") == 1
@@ -234,7 +236,7 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     root = write_ladder_results(tmp_path / "results")
     at = run_app(monkeypatch, root, "Reproduction")
     counts = {m.label: int(m.value) for m in at.metric}
-    assert counts == {"checks": 10, "pass": 1, "fail": 1, "running": 8}
+    assert counts == {"final-window checks": 10, "pass": 1, "fail": 1, "running": 8}
     table = at.dataframe[0].value
     assert len(table) == 10 and set(table["verdict"]) >= {"pass", "fail (too weak)", "not started"}
     assert len(at.get("vega_lite_chart")) == 9  # one panel per cell

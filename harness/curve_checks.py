@@ -1,0 +1,235 @@
+"""Whole-curve checks of a reproduction cell: every 100k window and the first-success step (docs/reproduction.md).
+
+A final-window check (:mod:`harness.reproduction`) can pass a method whose curve is far from the published one
+everywhere else: learning 2-3x faster and then sitting at the top, say. The two checks here look at the whole curve
+up to the cell's budget, under one rule for every cell:
+
+**Windows.** For each 100k window ``(lo, lo + 100k]`` up to the budget with at least :data:`MIN_SEEDS` published
+seeds complete in it (all 10 evaluations), the band is the published per-seed window means' ``[min - w, max + w]``
+(``w`` = the suite's ``widen``, 0.1). Our seed-mean of per-seed window means is *out* when outside the band. The check
+passes when at most ``A`` windows are out, where the allowance ``A`` is the smallest number such that a faithful method
+(below) has more than ``A`` windows out with probability at most ``alpha`` (0.05).
+
+**First success.** Each seed's first evaluation with deployed success >= 0.5 (a seed that never gets there within the
+budget counts as ``budget + eval_every``). The check passes when our seed-mean of those steps lies in the published
+seeds' range widened on each side by ``fs_widen`` (50k), or by the smallest larger multiple of 10k that a faithful
+method (below) leaves with probability at most ``alpha``; the published steps are censored at the same budget.
+
+**A faithful method** is simulated by a rank-preserving smoothed bootstrap of the published seeds: a simulated seed
+picks one published seed and, in every window, takes the published window-mean distribution's quantile (a Beta fitted
+by moments, as the final-window criterion's model) at that seed's rank in the window, jittered uniformly within its
+rank bin. A seed that was low stays low across windows (the published dips and late starts persist as they do), and
+draws still fall between and beyond the published values. For the first-success step, a simulated seed takes a
+published seed's step plus Gaussian noise (Silverman's bandwidth over the published steps; a censored step stays
+censored). Both probabilities are Monte Carlo estimates with a fixed seed, so the allowance is a pure function of the
+published data, the budget, the number of seeds and the rule.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+WINDOW = 100_000
+MIN_SEEDS = 3  # published seeds complete in a window for it to be checked
+ALPHA = 0.05  # the largest accepted false-fail probability of the whole-curve check
+FS_THRESHOLD = 0.5  # "first success": the first evaluation at or above this
+FS_WIDEN = 50_000  # the first-success band: published per-seed range +- this
+DRAWS = 20_000
+
+
+@dataclass(frozen=True)
+class CurveRule:
+    widen: float = 0.1
+    alpha: float = ALPHA
+    fs_widen: int = FS_WIDEN
+    eval_every: int = 10_000
+
+
+def window_table(curves: pd.DataFrame, steps: int, eval_every: int = 10_000) -> pd.DataFrame:
+    """Per-seed means of every 100k window up to ``steps`` over seeds complete in it: index ``lo``, columns seeds
+    (NaN where a seed lacks an evaluation of the window)."""
+    c = curves[(curves["step"] > 0) & (curves["step"] <= steps)]
+    c = c.assign(lo=(c["step"] - 1) // WINDOW * WINDOW)
+    per_window = WINDOW // eval_every
+    g = c.groupby(["lo", "seed"])["value"]
+    means = g.mean().where(g.count() >= per_window)
+    t = means.unstack("seed")
+    return t.reindex(range(0, steps - WINDOW + 1, WINDOW))
+
+
+def published_bands(published: pd.DataFrame, steps: int, widen: float) -> pd.DataFrame:
+    """Per checked window (``lo``): the published per-seed window means' min, max and seeds, and the band."""
+    t = window_table(published, steps)
+    n = t.notna().sum(axis=1)
+    t = t[n >= MIN_SEEDS]
+    return pd.DataFrame({"min": t.min(axis=1), "max": t.max(axis=1), "seeds": n[n >= MIN_SEEDS],
+                         "lower": t.min(axis=1) - widen, "upper": t.max(axis=1) + widen})
+
+
+def _beta_quantiles(values: np.ndarray, u: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Quantiles ``u`` of a Beta fitted by moments to ``values`` (clipped as the final-window model does)."""
+    m = np.clip(values, 0.005, 0.995)
+    mu, var = m.mean(), max(m.var(ddof=1), 1e-4)
+    k = max(mu * (1 - mu) / var - 1, 1e-3)
+    sample = np.sort(rng.beta(mu * k, (1 - mu) * k, size=4096))
+    pos = u * (len(sample) - 1)  # np.quantile's linear rule, indexed directly
+    i = np.minimum(pos.astype(np.int64), len(sample) - 2)
+    return sample[i] + (pos - i) * (sample[i + 1] - sample[i])
+
+
+def faithful_windows(published: pd.DataFrame, steps: int, n: int, draws: int = DRAWS, seed: int = 0) -> np.ndarray:
+    """Simulated seed-means of a faithful method with ``n`` seeds: (draws, checked windows)."""
+    rng = np.random.default_rng(seed)
+    t = window_table(published, steps)
+    t = t[t.notna().sum(axis=1) >= MIN_SEEDS]
+    seeds = list(t.columns)
+    pick = rng.integers(0, len(seeds), size=(draws, n))  # which published seed each simulated seed follows
+    out = np.empty((draws, len(t)))
+    for k, (_, row) in enumerate(t.iterrows()):
+        vals = row.to_numpy(dtype=np.float64)
+        have = ~np.isnan(vals)
+        m = int(have.sum())
+        # each seed's rank bin in this window, ties broken at random; a seed without this window: anywhere
+        order = np.full(len(seeds), -1)
+        order[have] = np.lexsort((rng.random(m), vals[have])).argsort()
+        r = order[pick]
+        u = np.where(r >= 0, (r + rng.random(r.shape)) / m, rng.random(r.shape))
+        out[:, k] = _beta_quantiles(vals[have], u, rng).mean(axis=1)
+    return out
+
+
+_MEMO: dict[tuple, object] = {}
+
+
+def _memo(name: str, published: pd.DataFrame, *args):
+    """A pure function of the published curves, memoised per process (the dashboard recomputes verdicts often)."""
+    key = (name, int(pd.util.hash_pandas_object(published[["seed", "step", "value"]], index=False).sum()), *args)
+    if key not in _MEMO:
+        _MEMO[key] = globals()[f"_{name}"](published, *args)
+    return _MEMO[key]
+
+
+def allowance(published: pd.DataFrame, steps: int, n: int, rule: CurveRule = CurveRule()) -> tuple[int, float]:
+    """(A, P(more than A windows out) for a faithful method with ``n`` seeds)."""
+    return _memo("allowance", published, steps, n, rule)
+
+
+def _allowance(published: pd.DataFrame, steps: int, n: int, rule: CurveRule) -> tuple[int, float]:
+    bands = published_bands(published, steps, rule.widen)
+    if bands.empty:
+        return 0, 0.0
+    sim = faithful_windows(published, steps, n)
+    out = ((sim < bands["lower"].to_numpy()) | (sim > bands["upper"].to_numpy())).sum(axis=1)
+    for a in range(len(bands) + 1):
+        p = float((out > a).mean())
+        if p <= rule.alpha:
+            return a, p
+    return len(bands), 0.0
+
+
+def first_success(curves: pd.DataFrame, steps: int, eval_every: int = 10_000) -> pd.Series:
+    """Per seed, the first evaluated step with value >= 0.5 within ``steps`` (``steps + eval_every`` if none)."""
+    c = curves[(curves["step"] <= steps)]
+    hit = c[c["value"] >= FS_THRESHOLD].groupby("seed")["step"].min()
+    return hit.reindex(sorted(c["seed"].unique())).fillna(steps + eval_every).astype(int)
+
+
+def first_success_band(published: pd.DataFrame, steps: int, rule: CurveRule = CurveRule(), n: int = 2) -> dict:
+    """See :func:`_first_success_band` (memoised)."""
+    return _memo("first_success_band", published, steps, rule, n)
+
+
+def _first_success_band(published: pd.DataFrame, steps: int, rule: CurveRule, n: int) -> dict:
+    """The published per-seed first-success steps (censored at the budget), the accepted band for the mean of ``n``
+    seeds (the published range widened by the smallest multiple of ``eval_every``, at least ``fs_widen``, that a
+    faithful method leaves with probability at most ``alpha``) and that probability."""
+    f = first_success(published, steps, rule.eval_every).to_numpy(dtype=np.float64)
+    censor = steps + rule.eval_every
+    rng = np.random.default_rng(0)
+    h = 1.06 * (f.std(ddof=1) if len(f) > 1 else 0.0) * len(f) ** -0.2  # Silverman's bandwidth
+    x = f[rng.integers(0, len(f), size=(DRAWS, n))]
+    x = np.where(x >= censor, censor, np.clip(x + rng.normal(0, h, size=x.shape), rule.eval_every, censor))
+    m = x.mean(axis=1)
+    widen = rule.fs_widen
+    while True:
+        lower, upper = f.min() - widen, f.max() + widen
+        p = float(((m < lower) | (m > upper)).mean())
+        if p <= rule.alpha:
+            break
+        widen += rule.eval_every
+    return {"published": [int(v) for v in f], "widen": int(widen), "lower": float(lower), "upper": float(upper),
+            "p_false_fail": p}
+
+
+def whole_curve_verdict(ours: pd.DataFrame, published: pd.DataFrame, steps: int, seeds: tuple[int, ...],
+                        rule: CurveRule = CurveRule()) -> dict:
+    """Both whole-curve checks of one cell from our curves (seed, step, value) and the published ones.
+
+    ``status`` is pass / fail / running (running until every seed has evaluated its whole budget); ``out`` lists the
+    windows (lo) whose seed-mean is outside the band so far, with the side; ``first_success`` is ours per seed."""
+    bands = published_bands(published, steps, rule.widen)
+    a, p = allowance(published, steps, len(seeds), rule)
+    ours = ours[ours["seed"].isin(seeds)]
+    t = window_table(ours, steps, rule.eval_every).reindex(columns=list(seeds))
+    mean = t.mean(axis=1, skipna=False).reindex(bands.index)  # a window counts once every seed has it
+    low, high = mean < bands["lower"], mean > bands["upper"]
+    out = [(int(lo), "low" if low[lo] else "high") for lo in bands.index if low[lo] or high[lo]]
+    reached = min((int(ours.loc[ours["seed"] == s, "step"].max()) if (ours["seed"] == s).any() else 0) for s in seeds)
+    done = reached >= steps
+    status = "running" if not done else ("pass" if len(out) <= a else "fail")
+    if not done and len(out) > a:
+        status = "fail"  # more windows out than allowed already: nothing to come can mend it
+    fsb = first_success_band(published, steps, rule, len(seeds))
+    censor = steps + rule.eval_every
+    fs = first_success(ours, steps, rule.eval_every).reindex(list(seeds)).fillna(censor)
+    at = {s: (int(ours.loc[ours["seed"] == s, "step"].max()) if (ours["seed"] == s).any() else 0) for s in seeds}
+    # a seed that has not succeeded yet and is still running will at the earliest at its next evaluation, at the
+    # latest never (censor): the seed-mean's bounds, as the final-window check's running verdict
+    least = np.mean([min(at[s] + rule.eval_every, censor) if fs[s] >= censor else fs[s] for s in seeds])
+    most = float(fs.mean())
+    lo_fs, hi_fs = fsb["lower"], fsb["upper"]
+    if least == most or lo_fs <= least <= most <= hi_fs:
+        fs_status = "pass" if lo_fs <= most <= hi_fs else "fail"
+    elif most < lo_fs or least > hi_fs:
+        fs_status = "fail"
+    else:
+        fs_status = "running"
+    fs_mean = most if least == most else float("nan")
+    return {"status": status, "windows": len(bands), "allowance": a, "p_false_fail": p, "out": out,
+            "reached": reached, "first_success": [None if v >= censor else int(v) for v in fs],
+            "first_success_mean": fs_mean, "first_success_least": float(least), "first_success_band": (fsb["lower"], fsb["upper"]),
+            "first_success_published": fsb["published"], "first_success_p_false_fail": fsb["p_false_fail"],
+            "first_success_status": fs_status}
+
+
+def whole_curve_text(v: dict) -> str:
+    """``pass (1 of 10 windows out, 2 allowed)``, ``fail (too strong at 100k-300k)``..."""
+    lows = [lo for lo, side in v["out"] if side == "low"]
+    highs = [lo for lo, side in v["out"] if side == "high"]
+
+    def spans(los):
+        return ", ".join(f"{lo // 1000}k-{(lo + WINDOW) // 1000}k" for lo in los)
+
+    where = "; ".join(x for x in (f"too strong at {spans(highs)}" if highs else "",
+                                  f"too weak at {spans(lows)}" if lows else "") if x)
+    counted = f"{len(v['out'])} of {v['windows']} windows out, {v['allowance']} allowed"
+    if v["status"] == "running" and not v["reached"]:
+        return "not started"
+    head = v["status"] if v["status"] != "running" else f"running (at {v['reached']:,})"
+    return f"{head}: {counted}" + (f"; {where}" if where else "")
+
+
+def first_success_text(v: dict) -> str:
+    lo, hi = v["first_success_band"]
+    if v["first_success_status"] == "running" and not v["reached"]:
+        return f"not started; accepted mean {max(lo, 0) / 1000:.0f}k-{hi / 1000:.0f}k"
+    ours = ", ".join("never" if s is None else f"{s // 1000}k" for s in v["first_success"])
+    pub = ", ".join(f"{s // 1000}k" for s in sorted(v["first_success_published"]))
+    side = ""
+    if v["first_success_status"] == "fail":
+        side = " (too early)" if v["first_success_least"] < lo else " (too late)"
+    return (f"{v['first_success_status']}{side}: ours {ours}; accepted mean {max(lo, 0) / 1000:.0f}k-{hi / 1000:.0f}k "
+            f"(published {pub})")

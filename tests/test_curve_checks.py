@@ -1,0 +1,151 @@
+"""The whole-curve checks (harness/curve_checks.py): every 100k window against the published per-seed range with an
+allowance computed from a faithful method's false-fail probability, and the first-success step; the pre-registered
+Table-1 suite; the Table-1 evidence grid (harness/evidence.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness import curve_checks as C
+from harness import reproduction as R
+from harness.synthetic import write_run
+
+from .conftest import requires_data
+
+STEPS = 500_000
+
+
+def curve(fn, seed: int, steps: int = STEPS) -> pd.DataFrame:
+    """One seed's curve, evaluations at 0 and every 10k: value fn(step)."""
+    s = np.arange(0, steps + 1, 10_000)
+    return pd.DataFrame({"seed": seed, "step": s, "value": [float(fn(x)) for x in s]})
+
+
+def ramp(at: int, top: float = 1.0):
+    """0 until step ``at``, ``top`` from there."""
+    return lambda s: top if s >= at else 0.0
+
+
+def published_five(starts=(200_000, 230_000, 260_000, 290_000, 320_000)) -> pd.DataFrame:
+    """Five published seeds that jump from 0 to 1 at ``starts``."""
+    return pd.concat([curve(ramp(a), k) for k, a in enumerate(starts)], ignore_index=True)
+
+
+def test_window_table_and_bands_use_complete_windows_only():
+    pub = published_five()
+    t = C.window_table(pub, STEPS)
+    assert list(t.index) == [0, 100_000, 200_000, 300_000, 400_000]
+    # seed 1 (1.0 from 230k): window 200k-300k holds 210k..300k, 8 of its 10 evaluations at 1
+    assert t.loc[200_000, 1] == pytest.approx(0.8) and t.loc[0, 1] == 0.0
+    short = pub[~((pub["seed"] == 4) & (pub["step"] == 450_000))]  # seed 4 misses one evaluation of the last window
+    b = C.published_bands(short, STEPS, 0.1)
+    assert b.loc[400_000, "seeds"] == 4 and b.loc[300_000, "seeds"] == 5
+    assert b.loc[200_000, ["min", "max", "lower", "upper"]].tolist() == pytest.approx([0.0, 1.0, -0.1, 1.1])
+    assert b.loc[300_000, ["min", "upper"]].tolist() == pytest.approx([0.9, 1.1])  # seed 4: 320k..400k at 1
+    only_two = pub[pub["seed"] < 2]  # fewer than 3 complete seeds: no window is checked
+    assert C.published_bands(only_two, STEPS, 0.1).empty
+
+
+def test_faithful_method_passes_a_fast_or_a_flat_one_fails():
+    pub = published_five()
+    a, p = C.allowance(pub, STEPS, 2)
+    assert 0 <= a <= 1 and p <= 0.05
+    # our seeds follow two published seeds: every window in band
+    ours = pd.concat([curve(ramp(230_000), 0), curve(ramp(290_000), 1)], ignore_index=True)
+    v = C.whole_curve_verdict(ours, pub, STEPS, (0, 1))
+    assert v["status"] == "pass" and v["out"] == [] and v["first_success_status"] == "pass"
+    assert v["first_success"] == [230_000, 290_000] and "pass" in C.whole_curve_text(v)
+    # learning at 60k and 80k: windows 0-100k and 100k-200k are far above the published 0.0 (band upper 0.1)
+    fast = pd.concat([curve(ramp(60_000), 0), curve(ramp(80_000), 1)], ignore_index=True)
+    v = C.whole_curve_verdict(fast, pub, STEPS, (0, 1))
+    assert v["status"] == "fail" and v["out"] == [(0, "high"), (100_000, "high")]
+    assert C.whole_curve_text(v).startswith("fail: 2 of 5 windows out") and "too strong at 0k-100k, 100k-200k" in \
+        C.whole_curve_text(v)
+    assert v["first_success_status"] == "fail" and C.first_success_text(v).startswith("fail (too early)")
+    # never learns: the last windows are below every published seed; first success never (budget + 10k)
+    flat = pd.concat([curve(ramp(10**9), 0), curve(ramp(10**9), 1)], ignore_index=True)
+    v = C.whole_curve_verdict(flat, pub, STEPS, (0, 1))
+    assert v["status"] == "fail" and (300_000, "low") in v["out"] and (400_000, "low") in v["out"]
+    assert v["first_success"] == [None, None] and v["first_success_mean"] == STEPS + 10_000
+    assert C.first_success_text(v).startswith("fail (too late): ours never, never")
+
+
+def test_running_checks_wait_unless_nothing_to_come_can_turn_them():
+    pub = published_five()
+    ours = pd.concat([curve(ramp(230_000), 0, 150_000), curve(ramp(290_000), 1, 150_000)], ignore_index=True)
+    v = C.whole_curve_verdict(ours, pub, STEPS, (0, 1))
+    assert v["status"] == "running" and v["reached"] == 150_000 and v["first_success_status"] == "running"
+    assert C.whole_curve_text(v).startswith("running (at 150,000): 0 of 5 windows out")
+    # already two windows out with none allowed past 1: fail before the budget
+    fast = pd.concat([curve(ramp(60_000), 0, 200_000), curve(ramp(80_000), 1, 200_000)], ignore_index=True)
+    a, _ = C.allowance(pub, STEPS, 2)
+    v = C.whole_curve_verdict(fast, pub, STEPS, (0, 1))
+    assert (v["status"] == "fail") == (a < 2)
+    # both seeds succeeded by 80k: the first-success mean is known, and too early, whatever comes
+    assert v["first_success_status"] == "fail"
+    # a seed not started: nothing to say yet
+    none = C.whole_curve_verdict(ours.iloc[:0], pub, STEPS, (0, 1))
+    assert C.whole_curve_text(none) == "not started" and C.first_success_text(none).startswith("not started")
+
+
+def test_first_success_band_censors_and_widens_until_a_faithful_method_passes():
+    pub = published_five((100_000, 200_000, 300_000, 400_000, 10**9))  # seed 4 never within the budget
+    b = C.first_success_band(pub, STEPS, n=2)
+    assert sorted(b["published"]) == [100_000, 200_000, 300_000, 400_000, STEPS + 10_000]
+    assert b["widen"] >= 50_000 and b["widen"] % 10_000 == 0 and b["p_false_fail"] <= 0.05
+    assert b["lower"] == 100_000 - b["widen"] and b["upper"] == STEPS + 10_000 + b["widen"]
+    # memoised: the same published curves give the same object without recomputing
+    assert C.first_success_band(pub, STEPS, n=2) is b
+
+
+@requires_data
+def test_table1_suite_is_the_pre_registered_rule_on_the_published_data():
+    """The Table-1 suite's criterion and the numbers its verdicts rest on, as pre-registered (suites/table1.yaml)."""
+    from harness.results import load_published
+
+    ladder = R.load_ladder("table1")
+    assert (ladder.widen, ladder.rule.alpha, ladder.rule.fs_widen) == (0.1, 0.05, 50_000)
+    assert len(ladder.cells) == 11 and all(len(c.seeds) == 2 for c in ladder.cells)
+    pub = load_published()
+    got = {}
+    for cell in ladder.cells:
+        p = R.cell_published(pub, cell)
+        got[(cell.algo, cell.env)] = (cell.steps, *C.allowance(p, cell.steps, 2))
+        for check in cell.checks:  # the final window is the budget's last 100k (and MEDAL peg's 6.5M-6.6M)
+            assert check.hi == cell.steps or (cell.algo, check.lo) == ("medal", 6_500_000)
+    # budgets and whole-curve allowances for 2 seeds (docs/reproduction.md, "Table 1: the pre-registered cells")
+    assert got[("medal", "sawyer_peg")][:2] == (8_000_000, 4)
+    assert got[("r3l", "sawyer_door")][:2] == (2_500_000, 2)
+    assert got[("fbrl", "sawyer_door")][:2] == (900_000, 1)
+    assert all(p <= 0.05 for _, _, p in got.values())
+    # every cell but the six "learns too much only" ones has a final window whose band excludes 0
+    one_sided = {(c.algo, c.env) for c in ladder.cells if c.checks[-1].min - ladder.widen < 0}
+    assert one_sided == {("naive", "tabletop_manipulation"), ("naive", "sawyer_door"), ("naive", "sawyer_peg"),
+                         ("fbrl", "sawyer_peg"), ("r3l", "sawyer_peg"), ("vaprl", "sawyer_peg")}
+
+
+@requires_data
+def test_table1_evidence_marks_verified_failing_and_missing_cells(tmp_path):
+    from harness.evidence import evidence_markdown, table1_evidence
+    from harness.results import load, load_published
+
+    status = {"state": "done", "step": 500_000, "total": 500_000, "steps_per_s": 20.0, "eta_s": 0.0, "last_success": 1}
+    pub = load_published()
+    oracle = R.published_curves(pub, R.Check(0, 0, "risc_paper", "oracle", 0, 0, 0), "tabletop_manipulation")
+    # oracle/tabletop (suite table1) as two published seeds did: verified; naive/peg learning at once: fails
+    for s, src in ((0, 1), (1, 3)):
+        c = oracle[(oracle["seed"] == src) & (oracle["step"] <= 500_000)].set_index("step")["value"]
+        write_run(tmp_path, "table1", "tabletop_manipulation", "oracle", s, range(0, 500_001, 10_000),
+                  lambda step, c=c: {"deployed_success": float(c.get(step, 0.0))}, status)
+        write_run(tmp_path, "table1", "sawyer_peg", "naive", s, range(0, 500_001, 10_000),
+                  lambda step: {"deployed_success": 1.0 if step >= 100_000 else 0.0}, status)
+    e = table1_evidence(load(tmp_path), pub).set_index(["algo", "env"])
+    assert len(e) == 18
+    assert e.loc[("oracle", "tabletop_manipulation"), "evidence"] == "verified"
+    assert e.loc[("naive", "sawyer_peg"), "evidence"] == "fails"
+    assert "too strong" in e.loc[("naive", "sawyer_peg"), "windows"]
+    assert e.loc[("medal", "sawyer_peg"), "evidence"] == "no results"
+    md = evidence_markdown(e.reset_index())
+    assert "**verified** (2 seeds, 0.5M)" in md and "no results (table1, 8M)" in md
