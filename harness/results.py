@@ -203,8 +203,8 @@ def _last_step(evals: Path) -> int:
 
 
 def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) -> tuple[list[Path], list[str]]:
-    """Copy the evaluation tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``run.yaml``,
-    ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
+    """Copy the evaluation tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``train.parquet``,
+    ``run.yaml``, ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
     tables a repository can ship so that a fresh clone shows them (docs/reproduction.md).
 
     A run that restarted from 0 (its checkpoint lost with a machine) would replace a shipped table that got further;
@@ -225,7 +225,7 @@ def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) 
         if not force and shipped.is_file() and (there := _last_step(shipped)) > (here := _last_step(evals)):
             kept.append(f"{rel.as_posix()} (shipped to step {there:,}, the run is at {here:,})")
             continue
-        for name in (EVALS_FILE, RUN_FILE, STATUS_FILE):  # not train.parquet: larger, and kept with the runs
+        for name in (EVALS_FILE, TRAIN_FILE, RUN_FILE, STATUS_FILE):  # the training diagnostics too: a diagnosis cites them
             if (run / name).is_file():
                 target = dst / rel / name
                 atomic_write_bytes(target, (run / name).read_bytes())

@@ -273,10 +273,15 @@ def test_ship_copies_tables_not_checkpoints_and_report_rewrites_the_doc_table(tm
     ckpt = runs / "reproduction" / "sawyer_door" / "oracle" / "checkpoints" / "seeds=0,1" / "checkpoint.pt"
     ckpt.parent.mkdir(parents=True)
     ckpt.write_bytes(b"x" * 100)
+    from harness.results import TRAIN_FILE, load_train
+
+    diag = run_dir(runs, "reproduction", "sawyer_door", "oracle", 0) / TRAIN_FILE  # training diagnostics ship too
+    pd.read_parquet(run_dir(runs, "reproduction", "sawyer_door", "oracle", 0) / "evals.parquet").to_parquet(diag)
     assert main(["ship", "suite=reproduction", f"results={runs}", f"to={tmp_path / 'repo'}"]) == 0
     shipped = sorted(p.relative_to(tmp_path / "repo") for p in (tmp_path / "repo").rglob("*") if p.is_file())
-    assert len(shipped) == 7 * 3 and not any("checkpoints" in p.parts for p in shipped)
+    assert len(shipped) == 7 * 3 + 1 and not any("checkpoints" in p.parts for p in shipped)
     pd.testing.assert_frame_equal(load(tmp_path / "repo"), load(runs))
+    pd.testing.assert_frame_equal(load_train(tmp_path / "repo"), load_train(runs))
     assert main(["ship", "suite=nope", f"results={runs}"]) == 2  # one line, nothing written
     doc = tmp_path / "doc.md"
     doc.write_text("intro\n<!-- table:reproduction -->\nold\n<!-- /table:reproduction -->\nend\n")
