@@ -56,9 +56,11 @@ RUN_KEYS: dict[str, tuple[str, str]] = {
     "steps": ("/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env", "training steps per run"),
     "eval_every": ("10000", "steps between deployed-policy evaluations"),
     "eval_episodes": ("10", "episodes per evaluation"),
-    "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every)"),
+    "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every; by default the first one from "
+                                  "50000 on)"),
     "keep_every": ("0", "also keep the checkpoints at multiples of it (checkpoint-<step>.pt; each a full checkpoint)"),
-    "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every)"),
+    "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every; default: the "
+                          "largest divisor of eval_every up to 1000)"),
     "members": ("1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)", "seeds trained in lockstep by one process"),
     "workers": ("cores (cuda: what the GPUs' memory and the cores hold)", "processes running groups in parallel"),
     "device": ("cpu", "torch device, e.g. cpu or cuda:0"),
@@ -336,14 +338,17 @@ def build_plan(req: RunRequest) -> Plan:
         return _int(key, given if given is not None else suite.get(key, default), 1, hi)
 
     eval_every, eval_episodes = value("eval_every", 10_000, MAX_STEPS), value("eval_episodes", 10, MAX_EPISODES)
-    ckpt = value("checkpoint_every", 50_000, MAX_STEPS)
+    # defaults follow the user's eval_every, so that no key the user never set can reject what they did set: a
+    # checkpoint at the first evaluation from 50k on, a diagnostics row at the largest divisor of eval_every <= 1000
+    ckpt = value("checkpoint_every", -(-50_000 // eval_every) * eval_every, MAX_STEPS)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
     keep = _int("keep_every", req.keep_every if req.keep_every is not None else suite.get("keep_every", 0), 0,
                 MAX_STEPS)
     if keep % ckpt:
         raise ConfigError(f"keep_every ({keep}) must be a multiple of checkpoint_every ({ckpt})")
-    log_every = value("log_every", min(1000, eval_every), MAX_STEPS)
+    log_every = value("log_every", next(d for d in range(min(1000, eval_every), 0, -1) if eval_every % d == 0),
+                      MAX_STEPS)
     if eval_every % log_every:
         raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
     suite_cfg = suite.get("config") or {}

@@ -316,3 +316,23 @@ def test_every_command_lists_its_keys_in_its_help(capsys):
         for key, (default, _) in table.items():
             assert re.search(rf"^  {key} +.*\[default: {re.escape(default)}\]$", out, re.M), (words, key)
 
+
+
+def test_defaults_follow_the_users_eval_every(tmp_path):
+    """A key the user never set cannot reject one they did (issue 58): log_every defaults to the largest divisor of
+    eval_every up to 1000, checkpoint_every to the first multiple of eval_every from 50k on; the usual values stay."""
+    from harness.runner import plan_words
+
+    def spec(*words):
+        return plan_words(["algo=naive", "env=tabletop_manipulation", f"results={tmp_path}", *words]).groups[0]
+
+    s = spec("eval_every=2500", "checkpoint_every=2500")
+    assert (s.eval_every, s.checkpoint_every, s.log_every) == (2500, 2500, 625)
+    s = spec("eval_every=3000")
+    assert (s.checkpoint_every, s.log_every) == (51_000, 1000)
+    s = spec("eval_every=7")
+    assert (s.checkpoint_every, s.log_every) == (50_001, 7)
+    s = spec()
+    assert (s.eval_every, s.checkpoint_every, s.log_every) == (10_000, 50_000, 1000)
+    with pytest.raises(Exception, match="must divide"):  # a value the user gave is still checked
+        spec("eval_every=2500", "log_every=1000")
