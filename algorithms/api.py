@@ -162,13 +162,22 @@ class AlgoConfig:
 
 
 def parse_int(name: str, value: Any) -> int:
-    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5`` and ``300_000``."""
+    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5`` and ``300_000`` (digits are read exactly, however
+    many; a value too long to show is cut in the message)."""
+    text = str(value).strip().replace("_", "")
+    shown = repr(value) if len(str(value)) <= 40 else f"{str(value)[:20]!r}... ({len(str(value))} characters)"
+    if text.lstrip("+-").isdigit():
+        if len(text) > 400:  # beyond any bound a setting declares (and Python's int() digit limit)
+            raise ValueError(f"{name} is too large: {shown}")
+        return int(text)
     try:
-        x = float(str(value).replace("_", ""))
+        x = float(text)
     except ValueError:
-        raise ValueError(f"{name} must be an integer, got {value!r}") from None
+        raise ValueError(f"{name} must be an integer, got {shown}") from None
+    if math.isinf(x):
+        raise ValueError(f"{name} is too large: {shown}")
     if not x.is_integer():
-        raise ValueError(f"{name} must be an integer, got {value!r}")
+        raise ValueError(f"{name} must be an integer, got {shown}")
     return int(x)
 
 

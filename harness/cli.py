@@ -73,6 +73,13 @@ def cmd_data(args) -> int:
                 raise UsageError(f"env {e!r} has no scripted experts (its EnvInfo.experts): no scripted demos")
         out = Path(ov["out"]) if "out" in ov else data_mod.cache_dir()
         seed = optional_integer("seed", ov.get("seed"), 0)
+        from harness.envs.base import resolve
+
+        writers = dict.fromkeys(ENVS[e].offline_assets for e in envs if ENVS[e].offline_assets)
+        for writer in writers:
+            resolve(writer)(out)  # the env's model files (checked against EARL's), before the env is built
+        if writers and data_mod.explicit_data_dir() is None:
+            data_mod.set_data_dir(out)  # the experts' envs load the model files just written
         for e in envs:
             for direction, n in zip(data_mod.DIRECTIONS, ENVS[e].scripted_demos):
                 arrays = generate_demos(e, direction, n, seed)

@@ -77,6 +77,11 @@ def set_data_dir(path: str | os.PathLike | None) -> None:
     _explicit_default = str(path) if path else None
 
 
+def explicit_data_dir() -> str | None:
+    """The data directory the user named (``--data-dir``, else ``HARNESS_DATA_DIR``), or None."""
+    return _explicit_default or os.environ.get("HARNESS_DATA_DIR") or None
+
+
 def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None) -> Path:
     """The first candidate directory holding ``need`` (a relative path such as ``demos`` or
     ``assets/tabletop``). Raises :class:`DataNotFoundError` with one line otherwise."""
@@ -93,7 +98,8 @@ def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None
     looked = ", ".join(f"{label} ({d})" for label, d in cands)
     raise DataNotFoundError(
         f"EARL data '{need}' not found; looked in {looked}. "
-        "Fix: run `harness data fetch`, or set HARNESS_DATA_DIR / --data-dir to an EARL data directory."
+        "Fix: run `harness data fetch` (offline: `harness data scripted`), or set HARNESS_DATA_DIR / --data-dir to an "
+        "EARL data directory."
     )
 
 
@@ -257,10 +263,33 @@ TABLETOP_ASSET_FILES = (
 )
 
 
+#: EARL's copies of the Meta-World Sawyer models the door and peg tasks load, with what they include (paths under the
+#: repository's ``earl_benchmark/envs/metaworld_assets/``; fetched to ``assets/metaworld_earl/``)
+SAWYER_ASSET_FILES = (
+    "sawyer_xyz/sawyer_door_pull.xml", "sawyer_xyz/sawyer_peg_insertion_side.xml", "scene/basic_scene.xml",
+    *(f"objects/assets/{n}.xml" for n in ("doorlockB", "doorlock_dependencies", "peg_block", "peg_block_dependencies",
+                                          "peg_insert_dependencies", "xyz_base", "xyz_base_dependencies")),
+    *(f"objects/meshes/doorlock/{n}.stl" for n in ("door", "door_handle", "handle_base", "lock", "lock_base", "safe")),
+    "objects/meshes/peg_block/block_inner.stl", "objects/meshes/peg_block/block_outer.stl",
+    "objects/meshes/table/tablebody.stl", "objects/meshes/table/tabletop.stl",
+    *(f"objects/meshes/xyz_base/{n}.stl" for n in ("base", "eGripperBase", "head", "l0", "l1", "l2", "l3", "l4", "l5",
+                                                   "l6", "pedestal")),
+    *(f"textures/{n}.png" for n in ("floor2", "metal", "metal1", "metal2", "wood1", "wood2")),
+)
+
+
 def _download(url: str, timeout: float = 60.0) -> bytes:
+    """The bytes at ``url``; a network failure is one line that says how to go on without the network."""
     req = urllib.request.Request(url, headers={"User-Agent": "earl-harness"})
-    with urllib.request.urlopen(req, timeout=timeout) as r:  # noqa: S310 (http(s) URL built by us)
-        return r.read()
+    try:
+        with urllib.request.urlopen(req, timeout=timeout) as r:  # noqa: S310 (http(s) URL built by us)
+            return r.read()
+    except (OSError, ValueError) as e:  # URLError, HTTPError, timeouts, refused connections, a malformed URL
+        reason = getattr(e, "reason", None) or e
+        raise DataNotFoundError(
+            f"cannot download {url} ({' '.join(str(reason).split())}). Without network: `harness data scripted` writes "
+            "demonstrations from the scripted experts, or point --data-dir / HARNESS_DATA_DIR at a copy of EARL's data"
+        ) from None
 
 
 def fetch(
@@ -270,7 +299,7 @@ def fetch(
     assets: bool = True,
     log=print,
 ) -> Path:
-    """Download EARL's demonstration pickles (and the tabletop assets) into ``dest`` (the cache),
+    """Download EARL's demonstration pickles (and the tabletop and Sawyer model files) into ``dest`` (the cache),
     converting each pickle to the ``demos/<env>/<direction>.npz`` layout. Files are written
     atomically; an interrupted fetch leaves no half file and can simply be re-run."""
     dest = Path(dest) if dest else cache_dir()
@@ -284,9 +313,11 @@ def fetch(
             save_demos(target, arrays, source="earl")
             log(f"  -> {target} ({len(arrays['actions'])} transitions)")
     if assets:
-        for name in TABLETOP_ASSET_FILES:
-            url = f"{base_url}/earl_benchmark/envs/tabletop_assets/{name}"
+        files = [(f"tabletop_assets/{n}", f"tabletop/{n}") for n in TABLETOP_ASSET_FILES]
+        files += [(f"metaworld_assets/{n}", f"metaworld_earl/{n}") for n in SAWYER_ASSET_FILES]
+        for remote, local in files:
+            url = f"{base_url}/earl_benchmark/envs/{remote}"
             log(f"fetch {url}")
-            atomic_write_bytes(dest / "assets" / "tabletop" / name, _download(url))
+            atomic_write_bytes(dest / "assets" / local, _download(url))
     return dest
 

@@ -57,10 +57,11 @@ def integer(key: str, value: Any, minimum: int = 0, maximum: int | None = None) 
         n = _parse_int(key, value)
     except (ValueError, OverflowError) as e:
         raise ConfigError(str(e) if isinstance(e, ValueError) else f"{key} must be an integer, got {value!r}") from None
+    shown = value if len(str(value)) <= 40 else f"{str(value)[:20]}... ({len(str(value))} characters)"
     if n < minimum:
-        raise ConfigError(f"{key} must be >= {minimum}, got {value}")
+        raise ConfigError(f"{key} must be >= {minimum}, got {shown}")
     if maximum is not None and n > maximum:
-        raise ConfigError(f"{key} must be <= {maximum:,}, got {value}")
+        raise ConfigError(f"{key} must be <= {maximum:,}, got {shown}")
     return n
 
 

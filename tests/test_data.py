@@ -88,6 +88,10 @@ def earl_mirror(tmp_path):
     assets.mkdir(parents=True)
     for name in data_mod.TABLETOP_ASSET_FILES:
         (assets / name).write_bytes((SHARED / "assets" / "tabletop" / name).read_bytes())
+    for name in data_mod.SAWYER_ASSET_FILES:
+        p = root / "earl_benchmark" / "envs" / "metaworld_assets" / name
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes((SHARED / "assets" / "metaworld_earl" / name).read_bytes())
     return root
 
 
@@ -112,10 +116,25 @@ def test_fetch_from_local_http_server(http_server, tmp_path, monkeypatch, capsys
             for k in DEMO_FIELDS:
                 np.testing.assert_array_equal(getattr(got, k), getattr(ref, k))
     assert (dest / "assets" / "tabletop" / "tabletop_manipulation.xml").exists()
+    for name in data_mod.SAWYER_ASSET_FILES:  # the Sawyer models too: every env runs from a fetched cache
+        assert (dest / "assets" / "metaworld_earl" / name).read_bytes() == \
+            (SHARED / "assets" / "metaworld_earl" / name).read_bytes()
     assert not list(dest.rglob("*.tmp"))
     monkeypatch.setenv("HARNESS_CACHE_DIR", str(dest))
     monkeypatch.delenv("HARNESS_DATA_DIR", raising=False)
     assert find_data_dir("demos") == dest  # the cache is found next time
+
+
+def test_fetch_without_network_is_one_line_naming_the_ways_on(tmp_path, capsys):
+    import socket
+
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    assert main(["data", "fetch", "--dest", str(tmp_path / "d"), "--base-url", f"http://127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "cannot download" in err and "harness data scripted" in err and "--data-dir" in err
+    assert not (tmp_path / "d" / "demos").exists() or not list((tmp_path / "d").rglob("*.npz"))
 
 
 def test_fetch_refuses_non_numpy_pickles(tmp_path):
@@ -133,6 +152,31 @@ def test_scripted_demos_cli(tmp_path):
     demos = load_demos("tabletop_manipulation", "reverse", data_dir=out)
     assert demos.source == "scripted" and len(demos.trajectories()) == 12
     np.testing.assert_array_equal(demos.observations[0, 6:], [0, 0, 2.5, 0, -1, -1])  # goal = rho0
+
+
+def test_scripted_data_runs_every_env_without_network_or_earl_data(tmp_path):
+    """Offline, `harness data scripted` writes what the Sawyer envs need too: EARL's model files, rebuilt from the
+    installed Meta-World's and checked against EARL's SHA-256 (so byte-identical to EARL's copies), then a run works
+    with that directory as the only data."""
+    from harness.envs.sawyer_assets import EARL_SHA256, earl_file
+
+    d = tmp_path / "offline"
+    assert main(["--data-dir", str(d), "data", "scripted", "env=sawyer_door", f"out={d}"]) == 0
+    assert sorted(p.relative_to(d / "assets" / "metaworld_earl").as_posix()
+                  for p in (d / "assets" / "metaworld_earl").rglob("*") if p.is_file()) == sorted(EARL_SHA256)
+    if (SHARED / "assets" / "metaworld_earl").is_dir():
+        for name in data_mod.SAWYER_ASSET_FILES:
+            assert (d / "assets" / "metaworld_earl" / name).read_bytes() == \
+                (SHARED / "assets" / "metaworld_earl" / name).read_bytes(), name
+    assert load_demos("sawyer_door", "forward", data_dir=d).source == "scripted"
+    assert main(["--data-dir", str(d), "run", "algo=naive", "env=sawyer_door", "steps=200", "eval_every=100",
+                 "eval_episodes=1", "all.seed_steps=100", "all.batch_size=16", f"results={tmp_path / 'r'}"]) == 0
+    # a Meta-World file that no longer rebuilds EARL's is one line naming it, nothing written
+    bad = tmp_path / "mw"
+    (bad / "objects" / "assets").mkdir(parents=True)
+    (bad / "objects" / "assets" / "xyz_base.xml").write_text("<mujocoinclude/>")
+    with pytest.raises(data_mod.DataNotFoundError, match="does not rebuild EARL's objects/assets/xyz_base.xml"):
+        earl_file("objects/assets/xyz_base.xml", bad)
 
 
 @pytest.mark.parametrize(

@@ -204,6 +204,7 @@ class EnvInfo:
     scripted_demos: tuple[int, int] = (0, 0)  # trajectories (forward, reverse) that `harness data scripted` writes
     bench_steps: int = 2_000  # env steps per timing in `harness bench env`
     metaworld_class: str | None = None  # "module:Class" of the raw Meta-World 3 env it builds on (timed by bench env)
+    offline_assets: Callable | str | None = None  # writes its model files into a data dir without network (data scripted)
 
     @property
     def name(self) -> str:
