@@ -182,12 +182,19 @@ def load(path: str | Path, warn=None, filename: str = EVALS_FILE) -> pd.DataFram
     return pa.concat_tables(tables, promote_options="permissive").to_pandas()
 
 
+#: envs whose published "deployed" curves are the deployed policy's return, not a success rate
+#: (shared/earl/README.md: EARL's kitchen and dhand_lightbulb, RISC's minitaur)
+RETURN_ENVS = frozenset({"kitchen", "dhand_lightbulb", "minitaur"})
+
+
 def load_published(data_dir: str | Path | None = None) -> pd.DataFrame:
     """The published learning curves in our long format (``source`` says whose)."""
     root = Path(data_dir) if data_dir else find_data_dir("reference/published_curves.csv.gz")
     df = pd.read_csv(root / "reference" / "published_curves.csv.gz")
     df = df.rename(columns={"method": "algo"})
     df["metric"] = df["metric"].replace(PUBLISHED_METRICS)
+    returns = df["env"].isin(RETURN_ENVS) & (df["metric"] == "deployed_success")
+    df.loc[returns, "metric"] = "deployed_return"  # the published "deployed" values are returns on these envs
     return df
 
 
@@ -203,8 +210,8 @@ def _last_step(evals: Path) -> int:
 
 
 def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) -> tuple[list[Path], list[str]]:
-    """Copy the evaluation tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``train.parquet``,
-    ``run.yaml``, ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
+    """Copy the tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``train.parquet``, ``run.yaml``,
+    ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
     tables a repository can ship so that a fresh clone shows them (docs/reproduction.md).
 
     A run that restarted from 0 (its checkpoint lost with a machine) would replace a shipped table that got further;

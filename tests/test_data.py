@@ -197,3 +197,14 @@ def test_bad_input_one_line_exit_2(argv, needle, capsys, tmp_path, monkeypatch):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and needle in err
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+@requires_data
+def test_published_deployed_values_are_returns_on_kitchen_dhand_and_minitaur():
+    from harness.results import load_published
+
+    p = load_published()
+    kinds = p[p["metric"].str.startswith("deployed")].groupby("env")["metric"].unique().map(sorted)
+    assert kinds["kitchen"] == kinds["minitaur"] == kinds["dhand_lightbulb"] == ["deployed_return"]
+    assert kinds["sawyer_peg"] == kinds["tabletop_manipulation"] == ["deployed_success"]
+    assert p.loc[(p["env"] == "kitchen") & (p["metric"] == "deployed_return"), "value"].min() < -1  # returns, not rates
