@@ -122,7 +122,9 @@ def filtered(root: str, sig: tuple, sel: Sel) -> pd.DataFrame:
         return df
     if not sel.tuning:
         df = df[~A.is_tuning(df)]
-    return A.select(df, suite=sel.suite, env=list(sel.envs), algo=list(sel.algos))
+    # runs of one method from several suites are shown side by side (MEDAL · reproduction, MEDAL · smoke), never
+    # averaged as seeds of one method
+    return A.separate_suites(A.select(df, suite=sel.suite, env=list(sel.envs), algo=list(sel.algos)))
 
 
 @st.cache_data(show_spinner=False, max_entries=32)
@@ -291,7 +293,7 @@ def tab_curves(root, sig, sel: Sel) -> None:
             st.info(f"Published curves unavailable: {err}")
         else:
             pub = published_curves_for(tuple(sources), tuple(sorted(c["env"].unique())),
-                                       tuple(sorted(c["algo"].unique())), metric, window, False)
+                                       tuple(sorted({A.base_algo(a) for a in c["algo"]})), metric, window, False)
             pub = A.same_pairs(pub, c)
             if clip and len(pub):
                 xmax = c.groupby("env")["step"].max()
@@ -328,10 +330,13 @@ def tab_table1(root, sig, sel: Sel) -> None:
         st.info("No deployed_success results for this selection.")
         return
     st.markdown(table1_markdown(t, published=published))
-    steps = t.dropna(subset=["step"]).groupby("env")["step"].max()
+    steps = t.dropna(subset=["step"]).groupby("env")["step"].agg(["min", "max"])
+    same = [f"{env_label(e)} {int(r['max']):,}" for e, r in steps.iterrows() if r["min"] == r["max"]]
     st.caption("Ours: deployed success, mean (standard error, ddof=1) over seeds"
-               + (f" at step {', '.join(f'{env_label(e)} {int(s):,}' for e, s in steps.items())}" if len(steps) else "")
-               + ". Best per env in bold (ties after rounding). "
+               + (f" at step {', '.join(same)}" if same else "")
+               + ("; where an env's rows come from different steps, each says its own (@step)" if len(same) < len(steps)
+                  else "") + ". A method with runs in several suites has a row per suite. Best per env in bold "
+               "(ties after rounding). "
                + (f"Paper: {PUBLISHED_TABLE1_SOURCE}; Δ = ours − paper." if published else ""))
     d1, d2, d3 = st.columns(3)
     d1.download_button("CSV", table1_csv(t), "table1.csv", "text/csv", key="dl_csv")

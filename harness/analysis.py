@@ -6,7 +6,8 @@ The statistics themselves are in ``harness.stats``, names and colours in ``harne
 Conventions
 -----------
 - A *run* is one (source, suite, env, algo, seed); its label is the ``run`` column that
-  :func:`with_runs` adds (``<suite or source>/<seed>``), so results of several suites can be pooled.
+  :func:`with_runs` adds (``<suite or source>/<seed>``). Runs of one method from several suites are never pooled:
+  :func:`separate_suites` names them ``<algo> · <suite>`` first (the dashboard and ``harness report`` do).
   Our own rows have ``source == "harness"``; published curves (``harness.results.load_published``)
   keep their ``source`` (``earl_benchmark``, ``risc_paper``).
 - **Common evaluation grid** (:func:`aligned`), per (source, env, algo):
@@ -73,6 +74,34 @@ def with_runs(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
+#: joins a method and the suite of its runs when a selection holds one method from several suites
+COHORT_SEP = " · "
+
+
+def separate_suites(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` where each (env, method) whose own runs come from more than one suite is split by suite: its ``algo``
+    becomes ``<algo> · <suite>``, so runs of different suites (other budgets, other settings: a 400-step smoke run
+    beside 1.5M-step ladder runs) are never averaged as seeds of one method. Published rows and methods from one suite
+    keep their names. Undo with :func:`base_algo`."""
+    if df.empty or "suite" not in df:
+        return df
+    ours = df["source"].fillna(OURS).eq(OURS) if "source" in df else pd.Series(True, index=df.index)
+    suites = df[ours].groupby(["env", "algo"])["suite"].nunique()
+    mixed = suites[suites > 1].index
+    if mixed.empty:
+        return df
+    hit = ours & pd.MultiIndex.from_frame(df[["env", "algo"]]).isin(mixed)
+    df = df.copy()
+    df["algo"] = df["algo"].astype(object)
+    df.loc[hit, "algo"] = df.loc[hit, "algo"].astype(str) + COHORT_SEP + df.loc[hit, "suite"].astype(str)
+    return df
+
+
+def base_algo(name: str) -> str:
+    """The method of a name made by :func:`separate_suites` (the name itself otherwise)."""
+    return name.split(COHORT_SEP, 1)[0]
+
+
 def derive_metrics(df: pd.DataFrame) -> pd.DataFrame:
     """Append the derived metrics (:data:`DERIVED_METRICS`) as extra rows."""
     cr = df[(df["metric"] == "continuing_reward") & (df["step"] > 0)]
@@ -100,7 +129,8 @@ def select(df: pd.DataFrame, metric: str | None = None, **eq: Any) -> pd.DataFra
 def same_pairs(df: pd.DataFrame, ours: pd.DataFrame) -> pd.DataFrame:
     """Rows of ``df`` (e.g. published curves) whose (env, algo) pair also occurs in ``ours``: a method run on one
     env only is not drawn from the paper on the others."""
-    pairs = pd.MultiIndex.from_frame(ours[["env", "algo"]].drop_duplicates())
+    o = ours[["env", "algo"]].drop_duplicates()
+    pairs = pd.MultiIndex.from_frame(o.assign(algo=o["algo"].astype(str).map(base_algo)))
     return df[pd.MultiIndex.from_frame(df[["env", "algo"]]).isin(pairs)]
 
 

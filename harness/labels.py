@@ -34,8 +34,13 @@ METHOD_COLORS: dict[str, str] = {
 EXTRA_COLORS = ("#999933", "#CC6677", "#6699CC", "#997700", "#EE99AA", "#004488", "#994455", "#666666")
 
 
+#: a method split by suite (``harness.analysis.separate_suites``): "<algo> · <suite>"
+COHORT_SEP = " · "
+
+
 def method_color(name: str) -> str:
-    """The fixed colour of method ``name`` (a registered algorithm, a published method, or a variant)."""
+    """The fixed colour of method ``name`` (a registered algorithm, a published method, or a variant); a method split
+    by suite gets a colour of its own per suite (by name), so two suites of one method never share one."""
     import zlib
 
     return METHOD_COLORS.get(name) or EXTRA_COLORS[zlib.crc32(name.encode()) % len(EXTRA_COLORS)]
@@ -57,6 +62,9 @@ def env_label(env: str) -> str:
 def algo_label(algo: str) -> str:
     """The display label of a method: its algorithm class's ``label`` (published names too), else the name itself
     (a suite's variants)."""
+    if COHORT_SEP in algo:  # a method split by suite: "MEDAL · reproduction"
+        base, suite = algo.split(COHORT_SEP, 1)
+        return f"{algo_label(base)}{COHORT_SEP}{suite}"
     cls = ALGORITHMS.get(PUBLISHED_ALIASES.get(algo, algo))
     return cls.label if cls is not None and cls.label else PUBLISHED_ONLY_LABELS.get(algo, algo)
 
@@ -71,6 +79,12 @@ def order_envs(envs: Iterable[str]) -> list[str]:
 
 
 def order_algos(algos: Iterable[str]) -> list[str]:
+    """Table 1's methods first in the paper's order, then the rest by name; a method split by suite sits with its
+    method (``medal``, ``medal · reproduction``, ``medal · smoke``)."""
     algos = list(dict.fromkeys(algos))
-    known = [a for a in ALGO_ORDER if a in algos]
-    return known + sorted(a for a in algos if a not in ALGO_ORDER)
+
+    def key(a: str) -> tuple:
+        base = a.split(COHORT_SEP, 1)[0]
+        return (ALGO_ORDER.index(base) if base in ALGO_ORDER else len(ALGO_ORDER), base, a)
+
+    return sorted(algos, key=key)

@@ -211,6 +211,8 @@ def report_cli(overrides: list[str]) -> int:
             raise ConfigError(f"doc= file not found: {ov['doc']}")
         replace_doc_table(Path(ov["doc"]).read_text(), suite, "")
 
+    cells_df = df  # the reproduction verdicts read cells by their own names
+    df = A.separate_suites(df)  # a method's runs from several suites are never pooled (MEDAL · smoke, ...)
     curves = A.learning_curves(df, metric, window=window)
     pub_curves = None
     if srcs:
@@ -249,7 +251,7 @@ def report_cli(overrides: list[str]) -> int:
     agg.to_csv(out / "aggregates.csv", index=False)
     written.append(out / "aggregates.csv")
     if is_cells_suite(suite):
-        written += write_reproduction(suite, df, out, ov.get("doc"))
+        written += write_reproduction(suite, cells_df, out, ov.get("doc"))
     for p in written:
         print(p)
     return 0

@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from harness.analysis import OURS, final_performance, select, with_runs
+from harness.analysis import OURS, base_algo, final_performance, select, with_runs
 from harness.labels import algo_label, env_label, order_algos, order_envs
 
 #: Table 1 of the MEDAL paper (Sharma, Ahmad, Finn, ICML 2022), as transcribed in
@@ -55,12 +55,13 @@ def table1(
     ours = final_performance(select(with_runs(df), source=OURS), metric, step, last_k, ddof)
     published = published or {}
     envs = order_envs(ours["env"]) or order_envs(e for _, e in published)
-    algos = order_algos(list(ours["algo"]) + [a for a, e in published if e in envs])
+    have = {base_algo(a) for a in ours["algo"]}
+    algos = order_algos(list(ours["algo"]) + [a for a, e in published if e in envs and a not in have])
     rows = []
     for env in envs:
         for algo in algos:
             o = ours[(ours["env"] == env) & (ours["algo"] == algo)]
-            p = published.get((algo, env))
+            p = published.get((base_algo(algo), env))  # a method split by suite is compared with the paper's too
             if o.empty and p is None:
                 continue
             r = {"algo": algo, "env": env}
@@ -84,10 +85,19 @@ def table1(
     return t[cols]
 
 
-def _fmt_ms(m: float, se: float, digits: int) -> str:
+#: the Table-1 budgets of suites/earl_sparse.yaml (docs/algorithms.md 1.2; the MEDAL paper does not state its own)
+TABLE1_BUDGET = {"tabletop_manipulation": 3_000_000, "sawyer_door": 5_000_000, "sawyer_peg": 8_000_000}
+EARLY = "†"  # marks a number taken at less than half of TABLE1_BUDGET
+
+
+def _steps(n: float) -> str:
+    return f"{n / 1e6:g}M" if n >= 1e6 else f"{n / 1e3:g}k" if n >= 1e3 else f"{n:g}"
+
+
+def _fmt_ms(m: float, se: float, digits: int, n: int = 2) -> str:
     if m is None or (isinstance(m, float) and math.isnan(m)):
         return "–"
-    return f"{m:.{digits}f} ({se:.{digits}f})"
+    return f"{m:.{digits}f} ({se:.{digits}f})" if n > 1 else f"{m:.{digits}f} (1 seed)"
 
 
 def _fmt_diff(d: float, digits: int) -> str:
@@ -107,6 +117,7 @@ def table1_display(t: pd.DataFrame, digits: int = 2, bold: Callable[[str], str] 
     out = pd.DataFrame(index=pd.Index([algo_label(a) for a in algos], name="Method"))
     for env in envs:
         e = t[t["env"] == env].set_index("algo")
+        mixed = e["step"].dropna().nunique() > 1  # rows at different steps: each says its own
         lab = env_label(env)
         ours, paper, diff = [], [], []
         for a in algos:
@@ -114,8 +125,12 @@ def table1_display(t: pd.DataFrame, digits: int = 2, bold: Callable[[str], str] 
                 ours.append("–"), paper.append("–"), diff.append("–")
                 continue
             r = e.loc[a]
-            s = _fmt_ms(r["ours_mean"], r["ours_se"], digits)
-            ours.append(bold(s) if r["ours_best"] and s != "–" else s)
+            s = _fmt_ms(r["ours_mean"], r["ours_se"], digits, int(r["n"]))
+            if s != "–":
+                s = bold(s) if r["ours_best"] else s
+                s += f" @{_steps(r['step'])}" if mixed else ""
+                s += EARLY if r["step"] < 0.5 * TABLE1_BUDGET.get(env, 0) else ""
+            ours.append(s)
             s = _fmt_ms(r["paper_mean"], r["paper_se"], digits)
             paper.append(bold(s) if r["paper_best"] and s != "–" else s)
             diff.append(_fmt_diff(r["diff"], digits))
@@ -133,12 +148,16 @@ def table1_markdown(t: pd.DataFrame, digits: int = 2, published: bool = True) ->
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join(["---"] + [":-:"] * len(w.columns)) + "|"]
     for name, row in w.iterrows():
         lines.append("| " + " | ".join([str(name)] + [str(v) for v in row]) + " |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n" + (f"\n{EARLY_NOTE}\n" if any(EARLY in str(v) for v in w.to_numpy().ravel()) else "")
+
+
+EARLY_NOTE = (f"{EARLY} taken before half of the Table-1 budget (3M tabletop, 5M door, 8M peg steps): not a final "
+              "number.")
 
 
 def _tex(s: str) -> str:
     for a, b in (("\\", r"\textbackslash{}"), ("&", r"\&"), ("%", r"\%"), ("_", r"\_"), ("#", r"\#"),
-                 ("Δ", r"$\Delta$"), ("±", r"$\pm$"), ("–", "--")):
+                 ("Δ", r"$\Delta$"), ("±", r"$\pm$"), ("–", "--"), (EARLY, r"$^\dagger$")):
         s = s.replace(a, b)
     return s
 
