@@ -1,7 +1,7 @@
 """Execution backends: where the run groups of a plan (and tuning's workers) run.
 
 - ``backend=local`` (default): the groups run in this process (``workers=1``) or in a pool of
-  ``workers`` spawned processes on this machine, each with ``cores // workers`` torch threads.
+  ``workers`` spawned processes on this machine, each with one torch thread on a CPU (``cores // workers`` on a GPU).
 - ``backend=ray``: each group is one Ray remote task (one CPU and one torch thread, and one GPU
   when the device is CUDA). ``ray_address=auto`` (or ``HOST:PORT``) joins a running cluster; without it a local Ray
   instance with ``workers`` CPUs is started (or the one this process already initialised is used).
@@ -73,6 +73,15 @@ def _skip_locked(e: Exception, plan: Plan, skipped: list[str]) -> None:
     skipped.append(str(e))
 
 
+def process_threads(plan: Plan) -> int:
+    """Torch threads of each training process: one on a CPU, whatever the number of workers (the networks are small:
+    a second intra-op thread buys little on an idle machine and stalls the step for seconds when another process
+    holds the other core, as on a 2-core machine beside one other run); on a GPU, the cores shared out."""
+    if all(str(g.device).startswith("cpu") for g in plan.groups):
+        return 1
+    return max(1, (os.cpu_count() or 1) // plan.workers)
+
+
 def run_local(plan: Plan, command: str, work: Work) -> list[str]:
     from harness.interrupts import RunInterrupted, RunLocked, sigterm_as_interrupt
 
@@ -83,7 +92,7 @@ def run_local(plan: Plan, command: str, work: Work) -> list[str]:
     with sigterm_as_interrupt():
         for g in plan.groups:
             try:
-                _report(work(g, command), errors)
+                _report(work(g, command, None, process_threads(plan)), errors)
             except RunLocked as e:
                 _skip_locked(e, plan, skipped)
             except RunInterrupted:
@@ -128,7 +137,7 @@ def run_pool(plan: Plan, command: str, work: Work) -> list[str]:
 
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
-    threads = max(1, (os.cpu_count() or 1) // plan.workers)
+    threads = process_threads(plan)
     errors: list[str] = []
     skipped: list[str] = []
     stopped = 0

@@ -119,6 +119,6 @@ def estimate(work: list[tuple[int, float]], workers: int) -> float:
     return max(load)
 
 
-def worker_threads(workers: int) -> int:
-    """The torch threads each worker of a local pool gets (harness.backends.run_pool); one worker: torch's default."""
-    return max(1, (os.cpu_count() or 1) // workers) if workers > 1 else torch.get_num_threads()
+def worker_threads(workers: int, device: str = "cpu") -> int:
+    """The torch threads each training process gets (:func:`harness.backends.process_threads`): one on a CPU."""
+    return 1 if device.startswith("cpu") else max(1, (os.cpu_count() or 1) // workers)

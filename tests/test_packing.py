@@ -80,3 +80,14 @@ def test_cpu_plans_are_unchanged(words, members, workers, monkeypatch):
     plan = build_plan(RunRequest.from_words(["suite=earl_sparse", *words]))
     assert {len(g.seeds) for g in plan.groups} == {members} and plan.workers == workers
     assert {g.device for g in plan.groups} == {"cpu"} and {g.env_workers for g in plan.groups} == {0}
+
+
+def test_cpu_training_processes_get_one_torch_thread(tmp_path):
+    """Issue 58: one group on a shared 2-core machine must not stall on a second intra-op thread."""
+    from harness.backends import process_threads
+    from harness.runner import plan_words
+
+    for workers in ("1", "2"):
+        plan = plan_words(["algo=naive", "env=tabletop_manipulation", "seeds=2", "members=1", f"workers={workers}",
+                           f"results={tmp_path}"])
+        assert process_threads(plan) == 1
