@@ -37,10 +37,13 @@ class Task(Protocol):
     train_horizon: int
     eval_horizon: int
     initial_states: np.ndarray  # (n, state_dim)
-    goal_states: np.ndarray  # (n, state_dim)
+    goal_states: np.ndarray  # (n, goal_dim)
 
     @property
-    def obs_dim(self) -> int: ...
+    def obs_dim(self) -> int: ...  # state_dim + goal_dim
+
+    @property
+    def goal_dim(self) -> int: ...  # state_dim, or fewer where the goal holds some state coordinates (minitaur: xy)
 
     def goal_distance(self, obs): ...
 
@@ -212,6 +215,18 @@ class Algorithm(ABC):
 
     Config: ClassVar[type[AlgoConfig]]
     label: ClassVar[str] = ""  # display name in reports and the dashboard (every registered algorithm sets its own)
+    #: True: cannot run without demonstrations (a discriminator's positives, a curriculum, the cloned data); the
+    #: harness refuses it on an env that has none. False: demos, if any, only seed buffers (empty sets are fine).
+    needs_demos: ClassVar[bool] = False
+    #: True: writes states into the goal (initial-state goals, demo-state subgoals, hindsight), so it needs goals that
+    #: are whole states (``goal_dim == state_dim``); the harness refuses it on an env whose goal is only some state
+    #: coordinates (minitaur: the base xy). False: only ever uses the env's own goals.
+    state_goals: ClassVar[bool] = True
+
+    @classmethod
+    def requires_demos(cls, cfg: AlgoConfig) -> bool:
+        """Whether this algorithm, configured by ``cfg``, needs demonstrations (default: :attr:`needs_demos`)."""
+        return cls.needs_demos
 
     def __init__(self, task: Task, demos: DemoSet, cfg: AlgoConfig, seeds: list[int], device: torch.device):
         self.task, self.demos, self.cfg, self.seeds, self.device = task, demos, cfg, list(seeds), device

@@ -43,6 +43,7 @@ class BC(Algorithm):
 
     label = "BC"
     Config = BCConfig
+    needs_demos = True  # the forward demos are its only data
 
     def __init__(self, task: Task, demos: DemoSet, cfg: BCConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)

@@ -51,7 +51,7 @@ def load_rng_states(rngs: list[np.random.Generator], states: list[dict]) -> None
 
 
 def with_goal(obs: np.ndarray, goal: np.ndarray, state_dim: int) -> np.ndarray:
-    """``obs`` (E, obs_dim) with its goal half replaced by ``goal`` (E, state_dim); a new array."""
+    """``obs`` (E, obs_dim) with its goal half replaced by ``goal`` (E, goal_dim); a new array."""
     out = obs.copy()
     out[:, state_dim:] = goal
     return out

@@ -26,3 +26,4 @@ class FBRLVICE(MEDAL):
 
     label = "FBRL + VICE"
     Config = FBRLVICEConfig
+    needs_demos = False  # positives from rho0; the demos only seed the buffers

@@ -102,6 +102,8 @@ class DACFields:
 class DAC:
     """The GAIL part, mixed into :class:`Naive` / :class:`Oracle` through their reward / learn_extra hooks."""
 
+    needs_demos = True  # the discriminator's expert (obs, action) pairs are the forward demos
+
     def __init__(self, task: Task, demos: DemoSet, cfg, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
         pairs = np.concatenate([demos.forward.observations, demos.forward.actions], 1).astype(np.float32)

@@ -92,6 +92,12 @@ class MEDAL(ForwardBackward):
 
     label = "MEDAL"
     Config = MEDALConfig
+    needs_demos = True  # the discriminator's positives are the forward demos' states (positives=demos)
+
+    @classmethod
+    def requires_demos(cls, cfg: MEDALConfig) -> bool:
+        """Only positives=demos needs them (positives=rho0, FBRL + VICE, uses EARL's initial states)."""
+        return cfg.positives == "demos"
 
     def __init__(self, task: Task, demos: DemoSet, cfg: MEDALConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)

@@ -40,6 +40,7 @@ class Naive(Algorithm):
 
     label = "naive RL"
     Config = NaiveConfig
+    state_goals = False  # only the env's own goals: runs where the goal is a few state coordinates (minitaur)
     episodic = False  # True: ask the loop to reset the env at every episode end instead of cutting
 
     def __init__(self, task: Task, demos: DemoSet, cfg: NaiveConfig, seeds: list[int], device: torch.device):
@@ -52,7 +53,7 @@ class Naive(Algorithm):
         self.buf.add_demo(**demo_arrays(demos.forward), ends_terminal=cfg.end_on_success)
         self.horizon = cfg.episode_steps or task.eval_horizon
         self.rngs = member_rngs(seeds, stream=Stream.TASK_GOALS)  # task-goal draws at cuts, seed-phase actions
-        self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
+        self.goal = np.zeros((E, task.goal_dim), dtype=np.float32)
         self.episode_steps = np.zeros(E, dtype=np.int64)
         self.step = 0
         self._action = np.zeros((E, A), dtype=np.float32)
@@ -112,14 +113,16 @@ class Naive(Algorithm):
         sd = self.task.state_dim
         no = with_goal(next_obs, self.goal, sd)
         success = np.asarray(self.task.is_success(no), dtype=bool)
+        # the task reward: 1[success] (EARL's sparse envs), or the env's dense reward (minitaur: EnvSpec.reward_fn)
+        reward = np.asarray(self.task.compute_reward(no), dtype=np.float32)
         self.episode_steps += 1
         terminal = success & self.cfg.end_on_success
         cut = (self.episode_steps >= self.horizon) | terminal
         truncated = (cut | hard_reset) & ~terminal
         with self.timers("buffer"):
-            self.buf.add(self._action, success.astype(np.float32), no, terminal, truncated)
+            self.buf.add(self._action, reward, no, terminal, truncated)
         self.log.add_host("episode/", {"end_success": terminal}, cut | hard_reset)
-        self._log_q_and_return(success, cut | hard_reset)
+        self._log_q_and_return(reward, cut | hard_reset)
         self.step += 1
         if self.episodic:
             return cut  # the loop resets these envs and calls on_reset

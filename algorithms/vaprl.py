@@ -306,6 +306,7 @@ class VaPRL(GoalConditioned):
 
     label = "VaPRL"
     Config = VaPRLConfig
+    needs_demos = True  # the subgoal candidates are demo states
 
     def __init__(self, task: Task, demos: DemoSet, cfg: VaPRLConfig, seeds: list[int], device: torch.device):
         self.earl_task = task

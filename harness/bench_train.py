@@ -18,9 +18,10 @@ from algorithms.api import DemoSet
 from algorithms.core.sac import UPDATES, set_update_mode
 from harness.command_keys import BENCH
 from harness.data import load_demos
-from harness.envs import ENVS, get_spec
+from harness.envs import check_env, get_spec
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
+from harness.runner import check_demos_needed, check_goal_shape
 from harness.suites import resolve_algo_config
 from harness.words import UsageError, optional_integer
 
@@ -29,6 +30,8 @@ def bench_train(algo: str, env: str, members: int, steps: int, device: str, repe
                 log=print, env_workers: int = 0, update: str = "default") -> dict:
     cls = ALGORITHMS[algo]
     cfg = resolve_algo_config(cls.Config, algo, env, {"all": {"seed_steps": seed_steps}})
+    check_goal_shape(algo, cls, env)  # one line when algo sets states as goals and env's goal is a few coordinates
+    check_demos_needed(algo, cls, cfg, env)  # one line when algo needs demos and env has none
     demos = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
     seeds = list(range(members))
     agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
@@ -77,8 +80,7 @@ def bench_train_cli(ov: dict[str, str]) -> int:
     algo, env = ov.get("algo", "medal"), ov.get("env", "sawyer_door")
     if algo not in ALGORITHMS:
         raise UsageError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
-    if env not in ENVS:
-        raise UsageError(f"unknown env {env!r}; known envs: {', '.join(ENVS)}")
+    check_env(env)  # unknown, never released or its simulator not installed: one line
     update = ov.get("update", "default")
     if update not in UPDATES:
         raise UsageError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")

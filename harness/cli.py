@@ -37,7 +37,7 @@ def _csv(v: str | None) -> list[str] | None:
 
 
 def cmd_list(args) -> int:
-    from harness.envs import ENVS
+    from harness.envs import ENVS, UNAVAILABLE_ENVS
     from harness.registry import ALGORITHMS
     from harness.suites import list_suites, load_suite
 
@@ -46,8 +46,11 @@ def cmd_list(args) -> int:
         doc = (cls.__doc__ or "").strip().splitlines()[0]
         print(f"  {name:<14} {doc}")
     print("envs:")
-    for name in ENVS:
-        print(f"  {name}")
+    for name, info in ENVS.items():
+        why = info.unavailable()  # an optional simulator not installed
+        print(f"  {name:<22} {why}" if why else f"  {name}")
+    for name, why in UNAVAILABLE_ENVS.items():
+        print(f"  {name:<22} {why}")
     print("suites:")
     for name in list_suites():
         print(f"  {name:<14} {load_suite(name)[1].get('description', '')}")
@@ -93,13 +96,12 @@ def cmd_data(args) -> int:
 def cmd_bench(args) -> int:
     if args.what == "env":
         from harness.bench import bench_env
-        from harness.envs import ENVS
+        from harness.envs import check_env
 
         ov = parse_overrides(args.overrides, {"env", *keys.BENCH["env"]})
         envs = _csv(ov.get("envs") or ov.get("env"))
         for e in envs or []:
-            if e not in ENVS:
-                raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+            check_env(e)  # unknown, never released or its simulator not installed: one line
         steps = optional_integer("steps", ov.get("steps"), 0, 1) if "steps" in ov else None
         bench_env(envs, steps, optional_integer("repeats", ov.get("repeats"), 5, 1))
         return 0

@@ -8,7 +8,7 @@ from __future__ import annotations
 import pandas as pd
 
 from harness.labels import algo_label, env_label, order_algos, order_envs
-from harness.reproduction import load_ladder, ladder_table
+from harness.reproduction import ladder_table, load_ladder
 from harness.tables import PUBLISHED_TABLE1
 
 #: the suites whose cells check Table 1, in the order their cells are taken (first cell of a (method, env) wins)

@@ -30,7 +30,7 @@ import torch
 import yaml
 
 from algorithms.core.sac import UPDATES
-from harness.envs import ENVS, env_info
+from harness.envs import ENVS, UnknownEnvError, check_env, env_info
 from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec
 from harness.suites import (
@@ -243,8 +243,10 @@ def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
     from harness.registry import ALGORITHMS
 
     for e in envs:
-        if e not in ENVS:
-            raise ConfigError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
+        try:
+            check_env(e)  # unknown, never released, or its optional simulator not installed: one line
+        except UnknownEnvError as err:
+            raise ConfigError(str(err)) from None
     unknown = [a for a in algos if a not in ALGORITHMS]
     if unknown:
         raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
@@ -314,6 +316,32 @@ def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     return units
 
 
+def check_demos_needed(name: str, cls, cfg, env: str) -> None:
+    """:class:`ConfigError` (one line) when algorithm ``cls`` with ``cfg`` needs demonstrations (``requires_demos``)
+    and ``env`` declares it has none (``EnvInfo.demos``)."""
+    from harness.registry import ALGORITHMS
+
+    if env_info(env).demos or not cls.requires_demos(cfg):
+        return
+    able = [a for a, c in ALGORITHMS.items() if not c.requires_demos(c.Config())]
+    raise ConfigError(f"algo={name} needs demonstrations and env={env} has none (EARL ships none for it); "
+                      f"algorithms that run without demonstrations: {', '.join(able)}")
+
+
+def check_goal_shape(name: str, cls, env: str) -> None:
+    """:class:`ConfigError` (one line) when algorithm ``cls`` writes states into the goal (``state_goals``) and
+    ``env``'s goal is only some of its state coordinates (``EnvSpec.goal_idx``: minitaur's base xy)."""
+    from harness.registry import ALGORITHMS
+
+    info = env_info(env)
+    spec = info.spec
+    if spec.goal_dim == spec.state_dim or not cls.state_goals:
+        return
+    able = [a for a, c in ALGORITHMS.items() if not c.state_goals and (info.demos or not c.requires_demos(c.Config()))]
+    raise ConfigError(f"algo={name} sets states as goals and env={env}'s goal is {spec.goal_dim} of its "
+                      f"{spec.state_dim} state coordinates; algorithms that run on it: {', '.join(able)}")
+
+
 def build_plan(req: RunRequest) -> Plan:
     """Resolve a request into run groups, checking everything (suite, algorithms, envs, configs, data, results
     directories); nothing is written. :func:`plan_words` does it for the words of a command."""
@@ -369,10 +397,13 @@ def build_plan(req: RunRequest) -> Plan:
                          u.cpu_members) for u in units], req.device, machine, req.members, req.workers, req.env_workers)
     groups: list[RunSpec] = []
     for u, members in zip(units, packing.members):
-        fwd = load_demos(u.env, "forward")  # fails early, with one line, if the data is missing
         cls = ALGORITHMS[u.algo_class]
         cell_layer = {u.algo_class: u.config} if u.config else {}
-        cfg_plain = as_plain(resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config))
+        cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
+        check_goal_shape(u.name, cls, u.env)  # first: its list of what runs also leaves out what needs demos
+        check_demos_needed(u.name, cls, cfg, u.env)
+        fwd = load_demos(u.env, "forward")  # fails early, with one line, if the data is missing
+        cfg_plain = as_plain(cfg)
         ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
         if u.name != u.algo_class:
             ident["algo_class"] = u.algo_class
@@ -630,7 +661,7 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
         devices = sorted({g.device for g in plan.groups})
         print(f"packed for {plan.machine}: {plan.workers} process(es) at once on {', '.join(devices)}"
               + "".join(f"; {r}" for r in plan.packing))
-    threads = calibration.worker_threads(plan.workers)
+    threads = calibration.worker_threads(plan.workers, str(plan.groups[0].device) if plan.groups else "cpu")
     todo = [i for i, (t, d) in enumerate(zip(total, done)) if d < t]
     rates = dict(zip(todo, calibration.rates([plan.groups[i] for i in todo], threads, calibrate)))
     for i, g in enumerate(plan.groups):

@@ -6,7 +6,10 @@ table of the harness is derived from ``ENVS`` (``GYM_IDS``, ``EVAL_HORIZONS`` be
 ``harness.labels.ENV_ORDER`` / ``ENV_LABELS``, ...). See docs/extending.md.
 
 ``register_gym()`` registers the gymnasium ids (``earl/TabletopManipulation-v0``,
-``earl/SawyerDoor-v0``, ``earl/SawyerPeg-v0``; ``max_episode_steps`` = EARL's eval horizon H_E).
+``earl/SawyerDoor-v0``, ``earl/SawyerPeg-v0``, ...; ``max_episode_steps`` = EARL's eval horizon H_E). An env whose
+simulator is an optional extra (minitaur: pybullet) stays registered without it; building it (``make_env``,
+``gym.make``) raises :class:`EnvUnavailableError` with one line saying why. ``UNAVAILABLE_ENVS``: EARL envs that
+cannot be run at all (dhand_lightbulb), listed with their reason.
 ``make_train_env`` / ``make_eval_env`` build the two envs of the EARL protocol directly (no
 gymnasium checker wrappers on the hot path).
 """
@@ -16,6 +19,8 @@ from __future__ import annotations
 import gymnasium as gym
 
 from harness.envs.base import EarlEnv, EnvInfo, EnvSpec, PersistentState
+from harness.envs.kitchen_task import KITCHEN
+from harness.envs.minitaur_task import MINITAUR
 from harness.envs.sawyer_tasks import SAWYER_DOOR, SAWYER_PEG
 from harness.envs.tabletop import TABLETOP
 
@@ -23,6 +28,13 @@ ENVS: dict[str, EnvInfo] = {
     "tabletop_manipulation": TABLETOP,
     "sawyer_door": SAWYER_DOOR,
     "sawyer_peg": SAWYER_PEG,
+    "kitchen": KITCHEN,
+    "minitaur": MINITAUR,
+}
+
+#: EARL envs that cannot be run at all: name -> why (``harness list`` shows them; ``env=`` gets the reason)
+UNAVAILABLE_ENVS: dict[str, str] = {
+    "dhand_lightbulb": "not available: EARL never released it",
 }
 
 #: derived views of ``ENVS`` as imported (code that must follow a registry changed at run time reads ``ENVS``)
@@ -35,11 +47,26 @@ class UnknownEnvError(KeyError):
         return str(self.args[0])
 
 
+class EnvUnavailableError(UnknownEnvError):
+    """The env is known but cannot be built here (never released, or an optional dependency is missing)."""
+
+
 def env_info(name: str) -> EnvInfo:
     """The registered :class:`EnvInfo` of ``name``; :class:`UnknownEnvError` (one line) when there is none."""
+    if name in UNAVAILABLE_ENVS:
+        raise EnvUnavailableError(f"env {name}: {UNAVAILABLE_ENVS[name]}")
     if name not in ENVS:
         raise UnknownEnvError(f"unknown env {name!r}; known envs: {', '.join(ENVS)}")
     return ENVS[name]
+
+
+def check_env(name: str) -> EnvInfo:
+    """:func:`env_info`, and :class:`EnvUnavailableError` (one line saying why) when the env cannot be built here."""
+    info = env_info(name)
+    why = info.unavailable()
+    if why:
+        raise EnvUnavailableError(why)
+    return info
 
 
 def get_spec(name: str) -> EnvSpec:
@@ -48,7 +75,7 @@ def get_spec(name: str) -> EnvSpec:
 
 def make_env(name: str, **kwargs) -> EarlEnv:
     """The bare EARL env (never truncates on its own)."""
-    return env_info(name).load_class()(**kwargs)
+    return check_env(name).load_class()(**kwargs)
 
 
 def make_train_env(name: str, horizon: int | None = None, **kwargs) -> PersistentState:
@@ -86,11 +113,14 @@ __all__ = [
     "ENVS",
     "EVAL_HORIZONS",
     "GYM_IDS",
+    "UNAVAILABLE_ENVS",
     "EarlEnv",
     "EnvInfo",
     "EnvSpec",
+    "EnvUnavailableError",
     "PersistentState",
     "UnknownEnvError",
+    "check_env",
     "env_info",
     "get_spec",
     "make_env",

@@ -1,9 +1,9 @@
 """The EARL environment contract shared by the three tasks.
 
-Every EARL observation is ``[state, goal]`` with ``goal_dim == state_dim``. The sparse reward and
-the success predicate read the goal *from the observation*, so any algorithm can ask "would this
-state count as reaching that goal?" by writing a goal into the second half of an observation
-(FBRL's initial-state goals, VaPRL's demo-state subgoals and hindsight relabelling all rely on it).
+Every EARL observation is ``[state, goal]`` with ``goal_dim == state_dim`` (minitaur alone: a goal of some state
+coordinates, ``EnvSpec.goal_idx``). The reward and the success predicate read the goal *from the observation*,
+so any algorithm can ask "would this state count as reaching that goal?" by writing a goal into the second half of
+an observation (FBRL's initial-state goals, VaPRL's demo-state subgoals and hindsight relabelling all rely on it).
 
 :class:`EnvSpec` is the typed, picklable description of a task that algorithms receive. It carries
 the constants of ``docs/algorithms.md`` section 1.1 and vectorised ``is_success`` /
@@ -20,6 +20,8 @@ and the train horizon is the :class:`PersistentState` wrapper's truncation.
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -41,15 +43,17 @@ class EnvSpec:
     train_horizon: int  # H_T: steps between hard resets of the reset-free train env
     eval_horizon: int  # H_E: length of an evaluation episode
     initial_states: np.ndarray = field(repr=False)  # (n, state_dim): EARL's get_initial_states()
-    goal_states: np.ndarray = field(repr=False)  # (n, state_dim): EARL's task goals
+    goal_states: np.ndarray = field(repr=False)  # (n, goal_dim): EARL's task goals
+    goal_idx: tuple[int, ...] | None = None  # the state coordinates the goal holds; None: the whole state
+    reward_fn: Callable | None = field(default=None, repr=False)  # dense reward of observations; None: 1[success]
 
     @property
     def obs_dim(self) -> int:
-        return 2 * self.state_dim
+        return self.state_dim + self.goal_dim
 
     @property
     def goal_dim(self) -> int:
-        return self.state_dim
+        return self.state_dim if self.goal_idx is None else len(self.goal_idx)
 
     def split(self, obs):
         """``obs[..., :state_dim], obs[..., state_dim:]`` (works for numpy and torch)."""
@@ -64,8 +68,9 @@ class EnvSpec:
     def goal_distance(self, obs):
         """Distance between state and goal on the success coordinates, for a batch (numpy/torch)."""
         idx = list(self.success_idx)
+        at = idx if self.goal_idx is None else [self.goal_idx.index(i) for i in idx]
         s = obs[..., idx]
-        g = obs[..., [self.state_dim + i for i in idx]]
+        g = obs[..., [self.state_dim + i for i in at]]
         d = s - g
         return (d * d).sum(-1) ** 0.5
 
@@ -74,7 +79,10 @@ class EnvSpec:
         return self.goal_distance(obs) <= self.success_threshold
 
     def compute_reward(self, obs):
-        """EARL's sparse reward ``1[success(obs)]`` as float (numpy float64 / torch dtype of obs)."""
+        """EARL's sparse reward ``1[success(obs)]`` as float (numpy float64 / torch dtype of obs), or the env's dense
+        ``reward_fn(obs)`` where it declares one."""
+        if self.reward_fn is not None:
+            return self.reward_fn(obs)
         ok = self.is_success(obs)
         if isinstance(ok, np.ndarray) or np.isscalar(ok):
             return np.asarray(ok, dtype=np.float64) * 1.0
@@ -86,7 +94,7 @@ class EarlEnv(gym.Env):
 
     ``reset(seed=..., options=...)`` draws only from ``self.np_random``. Options:
 
-    - ``{"goal": g}``: use goal ``g`` (state_dim vector) instead of drawing one of the task goals;
+    - ``{"goal": g}``: use goal ``g`` (goal_dim vector) instead of drawing one of the task goals;
     - ``{"state": obs}``: put the simulator in the state of a full observation (its goal half
       becomes the goal unless ``"goal"`` is also given).
 
@@ -205,6 +213,21 @@ class EnvInfo:
     bench_steps: int = 2_000  # env steps per timing in `harness bench env`
     metaworld_class: str | None = None  # "module:Class" of the raw Meta-World 3 env it builds on (timed by bench env)
     offline_assets: Callable | str | None = None  # writes its model files into a data dir without network (data scripted)
+    demos: bool = True  # False: the env has no demonstrations (EARL ships none): no demo files are looked for, the
+    #                     algorithms get empty demo sets, and those that need demos are refused at plan time
+    # what its simulator needs beyond the base install: (module, pip extra, newest Python the module has wheels for)
+    requires: tuple[str, str, str] | None = None
+
+    def unavailable(self) -> str | None:
+        """Why this env cannot be built here (one line), or None: its ``requires`` module is not importable."""
+        if self.requires is None or importlib.util.find_spec(self.requires[0]) is not None:
+            return None
+        module, extra, newest = self.requires
+        install = f"pip install 'earl-harness[{extra}]' on Python <= {newest}"
+        if sys.version_info[:2] > tuple(int(x) for x in newest.split(".")):
+            return f"env {self.name} needs {module}, which is not available for Python {sys.version_info[0]}." \
+                   f"{sys.version_info[1]}: {install}"
+        return f"env {self.name} needs {module}, which is not installed: {install}"
 
     @property
     def name(self) -> str:

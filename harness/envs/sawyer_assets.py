@@ -74,8 +74,8 @@ EDITS: dict[str, tuple[tuple[str, str], ...]] = {
     ),
     "objects/assets/xyz_base.xml": (
         ('      <camera name="corner4" fovy="60" mode="fixed" pos="0.75 0.075 0.7" euler="3.9 2.3 0.6"/>\r\n',
-         '      <camera name="clearview" fovy="60" mode="fixed" pos="1.2 0.3 0.8" euler="3.6 2.3 4"/>\r\n'
-         '      <camera name="doorview" fovy="45" mode="fixed" pos="0.8 0.3 0.8" euler="3.6 2.3 4"/>\r\n\r\n'),
+         ('      <camera name="clearview" fovy="60" mode="fixed" pos="1.2 0.3 0.8" euler="3.6 2.3 4"/>\r\n'
+          '      <camera name="doorview" fovy="45" mode="fixed" pos="0.8 0.3 0.8" euler="3.6 2.3 4"/>\r\n\r\n')),
         ('<camera name="gripperPOV" mode="track" pos="0.04 -0.06 0"', '<camera name="gripperPOV" mode="track" pos="0 -0.1 0"'),
     ),
 }
