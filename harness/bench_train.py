@@ -17,8 +17,7 @@ import torch
 from algorithms.api import DemoSet
 from algorithms.core.sac import UPDATES, set_update_mode
 from harness.command_keys import BENCH
-from harness.data import load_demos
-from harness.envs import check_env, get_spec
+from harness.envs import check_env, get_spec, load_env_demos
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
 from harness.runner import check_demos_needed, check_goal_shape
@@ -32,7 +31,7 @@ def bench_train(algo: str, env: str, members: int, steps: int, device: str, repe
     cfg = resolve_algo_config(cls.Config, algo, env, {"all": {"seed_steps": seed_steps}})
     check_goal_shape(algo, cls, env)  # one line when algo sets states as goals and env's goal is a few coordinates
     check_demos_needed(algo, cls, cfg, env)  # one line when algo needs demos and env has none
-    demos = DemoSet(load_demos(env, "forward"), load_demos(env, "reverse"))
+    demos = DemoSet(load_env_demos(env, "forward"), load_env_demos(env, "reverse"))
     seeds = list(range(members))
     agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
     set_update_mode(agent, update)

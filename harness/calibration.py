@@ -62,7 +62,7 @@ def measure(group: RunSpec, threads: int) -> float:
     """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O)."""
     from algorithms.api import DemoSet
     from algorithms.core.sac import set_update_mode
-    from harness.data import load_demos
+    from harness.envs import load_env_demos
     from harness.envs import get_spec
     from harness.protocol import Interaction
     from harness.registry import ALGORITHMS
@@ -72,7 +72,7 @@ def measure(group: RunSpec, threads: int) -> float:
     old = torch.get_num_threads()
     torch.set_num_threads(threads)
     try:
-        demos = DemoSet(load_demos(group.env, "forward"), load_demos(group.env, "reverse"))
+        demos = DemoSet(load_env_demos(group.env, "forward"), load_env_demos(group.env, "reverse"))
         algo = cls(get_spec(group.env), demos, cfg, list(group.seeds), torch.device(group.device))
         set_update_mode(algo, group.update)  # compiled at the first update, untimed
         inter = Interaction(group.env, list(group.seeds), group.env_workers)

@@ -141,31 +141,17 @@ class Demos:
 NO_DEMOS = "none"
 
 
-def has_demos(env: str) -> bool:
-    """False for a registered env that declares it has no demonstrations (``EnvInfo.demos``, e.g. EARL's kitchen):
-    no demo files are looked for, :func:`load_demos` gives empty sets."""
-    from harness.envs import ENVS  # here, not at the top: the env registry's simulators import this module
-
-    info = ENVS.get(env)
-    return info is None or info.demos
-
-
-def empty_demos(env: str, direction: str) -> Demos:
-    """No transitions, in the env's shapes (source :data:`NO_DEMOS`)."""
-    from harness.envs import ENVS
-
-    spec = ENVS[env].spec
-    obs = np.zeros((0, spec.obs_dim), dtype=np.float32)
-    return Demos(env=env, direction=direction, observations=obs, actions=np.zeros((0, spec.act_dim), dtype=np.float32),
+def empty_demos(env: str, direction: str, obs_dim: int, act_dim: int) -> Demos:
+    """No transitions, in an env's shapes (source :data:`NO_DEMOS`): what :func:`harness.envs.load_env_demos` gives
+    for an env without demonstrations."""
+    obs = np.zeros((0, obs_dim), dtype=np.float32)
+    return Demos(env=env, direction=direction, observations=obs, actions=np.zeros((0, act_dim), dtype=np.float32),
                  rewards=np.zeros(0, dtype=np.float32), terminals=np.zeros(0, dtype=bool), next_observations=obs.copy(),
                  source=NO_DEMOS)
 
 
 def demos_fingerprint(env: str) -> dict[str, str | None]:
-    """Where the demos of ``env`` were read from and a SHA-256 of their two files (recorded in ``run.yaml``); None
-    for an env without demonstrations."""
-    if not has_demos(env):
-        return {"data_dir": None, "demos_sha256": None}
+    """Where the demos of ``env`` were read from and a SHA-256 of their two files (recorded in ``run.yaml``)."""
     h = hashlib.sha256()
     paths = [demo_path(env, d) for d in DIRECTIONS]
     for p in paths:
@@ -185,8 +171,6 @@ def load_demos(env: str, direction: str = "forward", data_dir: str | os.PathLike
         raise ValueError(f"bad env name {env!r}: a registered env's short name")
     if direction not in DIRECTIONS:
         raise ValueError(f"unknown demo direction {direction!r}; known: forward, reverse")
-    if not has_demos(env):
-        return empty_demos(env, direction)
     # an env outside EARL's: `harness data fetch` cannot bring its demos, say what can
     hint = "" if env in ENV_NAMES else (f" ({env!r} is not an EARL env: write its demos with `harness data scripted "
                                         f"env={env}` or into demos/{env}/ of the data directory; docs/extending.md)")

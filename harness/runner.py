@@ -30,7 +30,7 @@ import torch
 import yaml
 
 from algorithms.core.sac import UPDATES
-from harness.envs import ENVS, UnknownEnvError, check_env, env_info
+from harness.envs import ENVS, UnknownEnvError, check_env, demos_record, env_info, load_env_demos
 from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec
 from harness.suites import (
@@ -345,7 +345,6 @@ def check_goal_shape(name: str, cls, env: str) -> None:
 def build_plan(req: RunRequest) -> Plan:
     """Resolve a request into run groups, checking everything (suite, algorithms, envs, configs, data, results
     directories); nothing is written. :func:`plan_words` does it for the words of a command."""
-    from harness.data import load_demos
     from harness.registry import ALGORITHMS
 
     if req.backend not in BACKENDS:
@@ -402,7 +401,7 @@ def build_plan(req: RunRequest) -> Plan:
         cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
         check_goal_shape(u.name, cls, u.env)  # first: its list of what runs also leaves out what needs demos
         check_demos_needed(u.name, cls, cfg, u.env)
-        fwd = load_demos(u.env, "forward")  # fails early, with one line, if the data is missing
+        fwd = load_env_demos(u.env, "forward")  # fails early, with one line, if the data is missing
         cfg_plain = as_plain(cfg)
         ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
         if u.name != u.algo_class:
@@ -570,7 +569,7 @@ def _try_status(write, d: Path, **fields: Any) -> None:
 def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     from algorithms.api import DemoSet
     from algorithms.core.sac import set_update_mode
-    from harness.data import atomic_write_bytes, demos_fingerprint, load_demos
+    from harness.data import atomic_write_bytes
     from harness.envs import get_spec
     from harness.protocol import train
     from harness.registry import ALGORITHMS
@@ -581,7 +580,7 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
         "eval_every": spec.eval_every, "eval_episodes": spec.eval_episodes, "device": spec.device,
         "group_seeds": list(spec.seeds),
         "config": spec.config, "config_hash": spec.config_hash, "demo_source": spec.demo_source,
-        **demos_fingerprint(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
+        **demos_record(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
         "python": sys.version.split()[0], "update": spec.update,
     }
     # a finished run keeps the record of its run (unless it has none: a deleted run.yaml is written anew)
@@ -589,7 +588,7 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
         for d, s in zip(spec.member_dirs(), spec.seeds):
             atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
     cls = ALGORITHMS[spec.algo_class]
-    demos = DemoSet(load_demos(spec.env, "forward"), load_demos(spec.env, "reverse"))
+    demos = DemoSet(load_env_demos(spec.env, "forward"), load_env_demos(spec.env, "reverse"))
     algo = cls(get_spec(spec.env), demos, cls.Config.from_dict(spec.config), list(spec.seeds), torch.device(spec.device))
     set_update_mode(algo, spec.update)
     train(spec, algo, lambda p: say(progress_line(spec.label, p)), should_stop)

@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from harness.data import DataNotFoundError, asset_path, load_demos
+from harness.data import DataNotFoundError, asset_path
 
 try:
     from harness.envs.kitchen import SCENE
@@ -305,7 +305,9 @@ def test_same_seed_same_episode_and_checkpoint_round_trip():
 
 
 def test_no_demos_and_the_algorithms_that_need_them():
-    fwd = load_demos("kitchen", "forward")
+    from harness.envs import load_env_demos
+
+    fwd = load_env_demos("kitchen", "forward")
     assert len(fwd) == 0 and fwd.observations.shape == (0, 46) and fwd.actions.shape == (0, 9)
     assert fwd.source == "none"
     needing = {name for name, cls in ALGORITHMS.items() if cls.requires_demos(cls.Config())}

@@ -16,6 +16,8 @@ gymnasium checker wrappers on the hot path).
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import gymnasium as gym
 
 from harness.envs.base import EarlEnv, EnvInfo, EnvSpec, PersistentState
@@ -23,6 +25,9 @@ from harness.envs.kitchen_task import KITCHEN
 from harness.envs.minitaur_task import MINITAUR
 from harness.envs.sawyer_tasks import SAWYER_DOOR, SAWYER_PEG
 from harness.envs.tabletop import TABLETOP
+
+if TYPE_CHECKING:
+    from harness.data import Demos
 
 ENVS: dict[str, EnvInfo] = {
     "tabletop_manipulation": TABLETOP,
@@ -67,6 +72,24 @@ def check_env(name: str) -> EnvInfo:
     if why:
         raise EnvUnavailableError(why)
     return info
+
+
+def load_env_demos(name: str, direction: str = "forward") -> Demos:
+    """The demonstrations of env ``name`` (:func:`harness.data.load_demos`), or empty sets in its shapes for an env
+    that has none (``EnvInfo.demos`` False: EARL ships no kitchen or minitaur demos), without looking for files."""
+    from harness.data import empty_demos, load_demos  # the data module imports torch: not for the registry alone
+
+    info = env_info(name)
+    if info.demos:
+        return load_demos(name, direction)
+    return empty_demos(name, direction, info.spec.obs_dim, info.spec.act_dim)
+
+
+def demos_record(name: str) -> dict[str, str | None]:
+    """What ``run.yaml`` records of the demos of env ``name``: their directory and SHA-256, None for an env without."""
+    from harness.data import demos_fingerprint
+
+    return demos_fingerprint(name) if env_info(name).demos else {"data_dir": None, "demos_sha256": None}
 
 
 def get_spec(name: str) -> EnvSpec:
@@ -121,6 +144,8 @@ __all__ = [
     "PersistentState",
     "UnknownEnvError",
     "check_env",
+    "demos_record",
+    "load_env_demos",
     "env_info",
     "get_spec",
     "make_env",

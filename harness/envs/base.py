@@ -45,7 +45,9 @@ class EnvSpec:
     initial_states: np.ndarray = field(repr=False)  # (n, state_dim): EARL's get_initial_states()
     goal_states: np.ndarray = field(repr=False)  # (n, goal_dim): EARL's task goals
     goal_idx: tuple[int, ...] | None = None  # the state coordinates the goal holds; None: the whole state
-    reward_fn: Callable | None = field(default=None, repr=False)  # dense reward of observations; None: 1[success]
+    #: dense reward of observations, or its "module:name" (imported on first use, so the catalogue stays cheap and
+    #: free of the simulator); None: 1[success]
+    reward_fn: Callable | str | None = field(default=None, repr=False)
 
     @property
     def obs_dim(self) -> int:
@@ -82,7 +84,7 @@ class EnvSpec:
         """EARL's sparse reward ``1[success(obs)]`` as float (numpy float64 / torch dtype of obs), or the env's dense
         ``reward_fn(obs)`` where it declares one."""
         if self.reward_fn is not None:
-            return self.reward_fn(obs)
+            return resolve(self.reward_fn)(obs)
         ok = self.is_success(obs)
         if isinstance(ok, np.ndarray) or np.isscalar(ok):
             return np.asarray(ok, dtype=np.float64) * 1.0

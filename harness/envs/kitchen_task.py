@@ -68,19 +68,12 @@ INITIAL_STATES = np.stack([_opened(p) for p in PAIRS])
 PAIR_NAMES = tuple("+".join(p) for p in PAIRS)
 
 
-def kitchen_reward(obs):
-    """EARL's dense kitchen reward of observations (..., 46), the learners' task reward: ``Kitchen._get_reward_n_score``
-    with its mocap and handle sites estimated from the observation (:class:`harness.envs.kitchen.ObsReward`; MuJoCo is
-    imported on the first call). The env's own step reward is EARL's exactly."""
-    from harness.envs.kitchen import obs_reward
-
-    return obs_reward(obs)
-
-
 KITCHEN_SPEC = EnvSpec(
     name="kitchen", gym_id="earl/Kitchen-v0", state_dim=23, act_dim=9, success_idx=tuple(range(9, 23)),
     success_threshold=0.3, train_horizon=100_000, eval_horizon=400,
-    initial_states=INITIAL_STATES, goal_states=GOAL_STATE[None].copy(), reward_fn=kitchen_reward,
+    initial_states=INITIAL_STATES, goal_states=GOAL_STATE[None].copy(),
+    # EARL's dense reward of observations, its mocap and handle sites estimated from the observation (MuJoCo)
+    reward_fn="harness.envs.kitchen:obs_reward",
 )
 
 #: the harness's catalogue entry (registered in ``harness.envs.ENVS``). EARL ships no kitchen demonstrations
