@@ -196,6 +196,14 @@ def resolve(ref: Any) -> Any:
     return getattr(importlib.import_module(module), name)
 
 
+def unpickle_env(cls: type, kwargs: dict, state: dict) -> EarlEnv:
+    """An env rebuilt from its constructor arguments and ``get_sim_state()``: what the simulator envs' ``__reduce__``
+    pickle instead of their simulator objects."""
+    env = cls(**kwargs)
+    env.set_sim_state(state)
+    return env
+
+
 @dataclass(frozen=True)
 class EnvInfo:
     """One env in the harness's catalogue: its :class:`EnvSpec` and the harness's facts about it.

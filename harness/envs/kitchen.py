@@ -57,7 +57,7 @@ import mujoco
 import numpy as np
 
 from harness.data import asset_path
-from harness.envs.base import EarlEnv
+from harness.envs.base import EarlEnv, unpickle_env
 from harness.envs.kitchen_task import COMPONENTS, INITIAL_STATES, KITCHEN_SPEC
 
 SCENE = ("adept_envs", "adept_envs", "franka", "assets", "franka_kitchen_jntpos_act_ab.xml")
@@ -369,7 +369,7 @@ class KitchenEnv(EarlEnv):
         mujoco.mj_kinematics(self.model, self.data)  # for rendering; stepping recomputes everything
 
     def __reduce__(self):
-        return (_unpickle_env, (type(self), self._ctor_kwargs, self.get_sim_state()))
+        return (unpickle_env, (type(self), self._ctor_kwargs, self.get_sim_state()))
 
     def current_obs(self) -> np.ndarray:
         return self._obs.copy()
@@ -397,9 +397,3 @@ class KitchenEnv(EarlEnv):
             self._renderer.close()
             self._renderer = None
         super().close()
-
-
-def _unpickle_env(cls, kwargs, state):
-    env = cls(**kwargs)
-    env.set_sim_state(state)
-    return env

@@ -75,7 +75,7 @@ import numpy as np
 
 from harness.data import asset_path
 from harness.envs import minitaur_task as T
-from harness.envs.base import EarlEnv
+from harness.envs.base import EarlEnv, unpickle_env
 
 
 @contextlib.contextmanager
@@ -335,7 +335,7 @@ class MinitaurEnv(EarlEnv):
 
     def __reduce__(self):
         """Pickle as (constructor arguments, ``get_sim_state()``): a pybullet client does not pickle."""
-        return (_unpickle_env, (type(self), self._ctor_kwargs, self.get_sim_state()))
+        return (unpickle_env, (type(self), self._ctor_kwargs, self.get_sim_state()))
 
     def current_obs(self) -> np.ndarray:
         """The last observation (a copy)."""
@@ -362,9 +362,3 @@ class MinitaurEnv(EarlEnv):
                 self._p.disconnect()
             self._p = None
         super().close()
-
-
-def _unpickle_env(cls, kwargs, state):
-    env = cls(**kwargs)
-    env.set_sim_state(state)
-    return env

@@ -53,7 +53,7 @@ from metaworld.envs.sawyer_door_close_v3 import SawyerDoorCloseEnvV3
 from metaworld.envs.sawyer_peg_insertion_side_v3 import SawyerPegInsertionSideEnvV3
 
 from harness.data import asset_path
-from harness.envs.base import EarlEnv
+from harness.envs.base import EarlEnv, unpickle_env
 from harness.envs.sawyer_tasks import DOOR_SPEC, PEG_GOAL_STATES, PEG_SPEC
 
 _MOCAP_QUAT = np.array([1.0, 0.0, 1.0, 0.0])  # Meta-World's fixed gripper orientation
@@ -284,7 +284,7 @@ class _SawyerEarl(EarlEnv):
     def __reduce__(self):
         """Pickle as (constructor arguments, ``get_sim_state()``): Meta-World's ``__getstate__`` would
         rebuild the model from the file and lose our model edits (object placement, goal site)."""
-        return (_unpickle_env, (type(self), self._ctor_kwargs, self.get_sim_state()))
+        return (unpickle_env, (type(self), self._ctor_kwargs, self.get_sim_state()))
 
     def current_obs(self) -> np.ndarray:
         """The last observation (a copy)."""
@@ -308,12 +308,6 @@ class _SawyerEarl(EarlEnv):
             self._renderer.close()
             self._renderer = None
         super().close()
-
-
-def _unpickle_env(cls, kwargs, state):
-    env = cls(**kwargs)
-    env.set_sim_state(state)
-    return env
 
 
 class SawyerDoorEnv(_SawyerEarl, SawyerDoorCloseEnvV3):
