@@ -228,6 +228,11 @@ class Algorithm(ABC):
         """Whether this algorithm, configured by ``cfg``, needs demonstrations (default: :attr:`needs_demos`)."""
         return cls.needs_demos
 
+    @classmethod
+    def check_task(cls, cfg: AlgoConfig, task: Task) -> None:
+        """Raise ValueError (one line) when ``cfg`` cannot run on ``task`` (a setting naming state coordinates the task
+        lacks, say). The harness calls it when it plans a run, so the error comes before anything is written."""
+
     def __init__(self, task: Task, demos: DemoSet, cfg: AlgoConfig, seeds: list[int], device: torch.device):
         self.task, self.demos, self.cfg, self.seeds, self.device = task, demos, cfg, list(seeds), device
         self.E = len(seeds)

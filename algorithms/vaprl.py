@@ -308,6 +308,10 @@ class VaPRL(GoalConditioned):
     Config = VaPRLConfig
     needs_demos = True  # the subgoal candidates are demo states
 
+    @classmethod
+    def check_task(cls, cfg: VaPRLConfig, task: Task) -> None:
+        goal_test(task, cfg)  # goal_coords must name coordinates of this task's state
+
     def __init__(self, task: Task, demos: DemoSet, cfg: VaPRLConfig, seeds: list[int], device: torch.device):
         self.earl_task = task
         task = goal_test(task, cfg)

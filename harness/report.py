@@ -161,6 +161,9 @@ def report_cli(overrides: list[str]) -> int:
     from harness.results import load, load_published
 
     ov = parse(overrides)
+    for key in ("results", "out", "suite", "doc"):
+        if key in ov and not str(ov[key]).strip():
+            raise ConfigError(f"{key}= is empty: give a value (or leave {key} out for its default)")
     results = Path(ov.get("results", "results"))
     if not results.exists():
         raise ConfigError(f"results directory not found: {results}; run `harness run suite=...` first or pass results=DIR")
@@ -201,6 +204,9 @@ def report_cli(overrides: list[str]) -> int:
             raise ConfigError(f"no results for suite {suite!r} under {results}; suites with results: {', '.join(known)}")
     if not (df["metric"] == "deployed_success").any():
         raise ConfigError(f"no deployed_success rows under {results}" + (f" for suite {suite!r}" if suite else ""))
+    if isinstance(step, int) and step > (furthest := int(df["step"].max())):
+        raise ConfigError(f"step={step:,} is past every run (the furthest evaluated step is {furthest:,}): Table 1 "
+                          "would be empty; give step=last, matched or a step the runs reached")
 
     if "doc" in ov:  # checked before anything is written
         from harness.reproduction import replace_doc_table

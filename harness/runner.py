@@ -225,6 +225,9 @@ class RunRequest:
         def opt(key: str, lo: int, hi: int) -> int | None:
             return _int(key, ov[key], lo, hi) if key in ov else None
 
+        for key in ("results", "suite", "device", "backend"):
+            if key in ov and not str(ov[key]).strip():
+                raise ConfigError(f"{key}= is empty: give a value (or leave {key} out for its default)")
         return cls(
             suite=ov.get("suite"), algos=tuple(names("algo", ov.get("algos") or ov.get("algo") or [])),
             envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
@@ -401,6 +404,10 @@ def build_plan(req: RunRequest) -> Plan:
         cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
         check_goal_shape(u.name, cls, u.env)  # first: its list of what runs also leaves out what needs demos
         check_demos_needed(u.name, cls, cfg, u.env)
+        try:
+            cls.check_task(cfg, env_info(u.env).spec)
+        except ValueError as e:
+            raise ConfigError(f"{u.name} on {u.env}: {e}") from None
         fwd = load_env_demos(u.env, "forward")  # fails early, with one line, if the data is missing
         cfg_plain = as_plain(cfg)
         ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
@@ -660,6 +667,11 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
         devices = sorted({g.device for g in plan.groups})
         print(f"packed for {plan.machine}: {plan.workers} process(es) at once on {', '.join(devices)}"
               + "".join(f"; {r}" for r in plan.packing))
+    cores = os.cpu_count() or 1
+    busy = min(plan.workers, len(plan.groups))
+    if busy > cores and all(str(g.device).startswith("cpu") for g in plan.groups):
+        print(f"harness: note: workers={plan.workers} starts {busy} processes on {cores} cores: they will share cores "
+              f"and each run slower than one process per core (workers={cores})", file=sys.stderr)
     threads = calibration.worker_threads(plan.workers, str(plan.groups[0].device) if plan.groups else "cpu")
     todo = [i for i, (t, d) in enumerate(zip(total, done)) if d < t]
     rates = dict(zip(todo, calibration.rates([plan.groups[i] for i in todo], threads, calibrate)))

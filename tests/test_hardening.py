@@ -352,3 +352,28 @@ def test_help_lists_every_key_with_default(capsys):
         for k in keys:
             assert f"\n  {k} " in out
         assert "[default: 10000]" in out and "medal:" in out and "disc_lr" in out and "reward_form" in out
+
+
+@requires_data
+@pytest.mark.parametrize("argv", [
+    ["run", "algo=vaprl", "env=tabletop_manipulation", "vaprl.goal_coords=0,1,99", "--dry-run"],  # checked at plan time
+    ["run", "algo=naive", "env=tabletop_manipulation", "results=", "--dry-run"],
+    ["run", "algo=naive", "env=tabletop_manipulation", "suite=", "--dry-run"],
+    ["report", "results=", "out=x"],
+    ["report", "out="],
+])
+def test_late_or_empty_values_are_one_line_before_anything_is_written(capsys, tmp_path, monkeypatch, argv):
+    monkeypatch.chdir(tmp_path)  # an empty results= or out= must not write into the current directory
+    res = tmp_path / "results"
+    one_error_line(capsys, [*argv] if "results=" in argv else [*argv, f"results={res}"], res)
+    assert not list(tmp_path.iterdir())
+
+
+@requires_data
+def test_report_step_past_every_run_is_one_line(capsys, tmp_path):
+    from tests.fixtures_results import write_fixture
+
+    root = write_fixture(tmp_path / "results", failed=False)
+    assert main(["report", f"results={root}", "step=99999999", f"out={tmp_path / 'out'}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "past every run" in err and not (tmp_path / "out").exists()
