@@ -222,6 +222,10 @@ class Algorithm(ABC):
     #: are whole states (``goal_dim == state_dim``); the harness refuses it on an env whose goal is only some state
     #: coordinates (minitaur: the base xy). False: only ever uses the env's own goals.
     state_goals: ClassVar[bool] = True
+    #: True: learns from the task's reward (``Task.compute_reward``: EARL's dense reward where the env declares one,
+    #: as on kitchen and minitaur). False: learns from 1[success] of the goals it sets, which on an env with a dense
+    #: reward is not what EARL trained on; the harness refuses it there.
+    task_reward: ClassVar[bool] = False
 
     @classmethod
     def requires_demos(cls, cfg: AlgoConfig) -> bool:

@@ -41,6 +41,7 @@ class Naive(Algorithm):
     label = "naive RL"
     Config = NaiveConfig
     state_goals = False  # only the env's own goals: runs where the goal is a few state coordinates (minitaur)
+    task_reward = True  # the env's reward: EARL's dense reward on kitchen and minitaur
     episodic = False  # True: ask the loop to reset the env at every episode end instead of cutting
 
     def __init__(self, task: Task, demos: DemoSet, cfg: NaiveConfig, seeds: list[int], device: torch.device):

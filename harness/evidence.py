@@ -45,6 +45,7 @@ def table1_evidence(df: pd.DataFrame, published: pd.DataFrame | None) -> pd.Data
             cells[key] = {
                 "suite": suite, "budget": cell.steps, "seeds": len(cell.seeds), "reached": int(rows["reached"].min()),
                 "evidence": _summary(rows),
+                "checks": list(zip(rows["window"], rows["verdict"])),  # (window, verdict) of each final window
                 "windows": "; ".join(f"{w}: {v}" for w, v in zip(rows["window"], rows["verdict"])),
                 "curve": rows["curve"].iloc[0] if "curve" in rows else "",
                 "first_success": rows["first_success"].iloc[0] if "first_success" in rows else "",
@@ -52,7 +53,7 @@ def table1_evidence(df: pd.DataFrame, published: pd.DataFrame | None) -> pd.Data
     out = []
     for (algo, env) in PUBLISHED_TABLE1:
         c = cells.get((algo, env), {"suite": "", "budget": 0, "seeds": 0, "reached": 0, "evidence": "no cell",
-                                    "windows": "", "curve": "", "first_success": ""})
+                                    "checks": [], "windows": "", "curve": "", "first_success": ""})
         out.append({"algo": algo, "env": env, **c})
     return pd.DataFrame(out)
 
@@ -76,7 +77,7 @@ def evidence_markdown(e: pd.DataFrame) -> str:
                 cells.append(r["evidence"] + (f" ({r['suite']}, {r['budget'] / 1e6:g}M)" if r["suite"] else ""))
                 continue
             at = "" if r["reached"] >= r["budget"] else f", at {r['reached'] / 1e6:g}M"
-            finals = "; ".join(f"{w.split(': ', 1)[0]} {_short(w.split(': ', 1)[1])}" for w in r["windows"].split("; "))
+            finals = "; ".join(f"{w} {_short(v)}" for w, v in r["checks"])
             curve = f"<br>curve {_short(r['curve'])}<br>first success {_short(r['first_success'])}" if r["curve"] else ""
             cells.append(f"**{r['evidence']}** ({r['seeds']} seeds, {r['budget'] / 1e6:g}M{at})<br>{finals}{curve}")
             details.append(f"- {algo_label(a)}, {env_label(env)} (suite {r['suite']}): final window {r['windows']}"

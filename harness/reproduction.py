@@ -198,9 +198,13 @@ def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000,
         curves = our_curves(ours, ladder.suite, cell)
         whole = {}
         if published is not None:
-            w = C.whole_curve_verdict(curves, cell_published(published, cell), cell.steps, cell.seeds, ladder.rule)
-            whole = {"curve": C.whole_curve_text(w), "curve_status": w["status"],
-                     "first_success": C.first_success_text(w), "first_success_status": w["first_success_status"]}
+            try:
+                w = C.whole_curve_verdict(curves, cell_published(published, cell), cell.steps, cell.seeds, ladder.rule)
+                whole = {"curve": C.whole_curve_text(w), "curve_status": w["status"],
+                         "first_success": C.first_success_text(w), "first_success_status": w["first_success_status"]}
+            except ValueError as e:  # no published curves for this cell: say so, no verdict
+                whole = {"curve": f"none: {e}", "curve_status": "none", "first_success": "none",
+                         "first_success_status": "none"}
         for check in cell.checks:
             v = verdict(curves, cell, check, ladder.widen, eval_every)
             rows.append({

@@ -331,6 +331,19 @@ def check_demos_needed(name: str, cls, cfg, env: str) -> None:
                       f"algorithms that run without demonstrations: {', '.join(able)}")
 
 
+def check_task_reward(name: str, cls, env: str) -> None:
+    """:class:`ConfigError` (one line) when ``env`` declares a dense reward (``EnvSpec.reward_fn``: EARL trained on it)
+    and algorithm ``cls`` learns from 1[success] instead (``task_reward`` False)."""
+    from harness.registry import ALGORITHMS
+
+    info = env_info(env)
+    if info.spec.reward_fn is None or cls.task_reward:
+        return
+    able = [a for a, c in ALGORITHMS.items() if c.task_reward and (info.demos or not c.requires_demos(c.Config()))]
+    raise ConfigError(f"algo={name} learns from 1[success] and env={env}'s reward is dense (EARL trained on it); "
+                      f"algorithms that learn from it: {', '.join(able)}")
+
+
 def check_goal_shape(name: str, cls, env: str) -> None:
     """:class:`ConfigError` (one line) when algorithm ``cls`` writes states into the goal (``state_goals``) and
     ``env``'s goal is only some of its state coordinates (``EnvSpec.goal_idx``: minitaur's base xy)."""
@@ -404,6 +417,7 @@ def build_plan(req: RunRequest) -> Plan:
         cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
         check_goal_shape(u.name, cls, u.env)  # first: its list of what runs also leaves out what needs demos
         check_demos_needed(u.name, cls, cfg, u.env)
+        check_task_reward(u.name, cls, u.env)
         try:
             cls.check_task(cfg, env_info(u.env).spec)
         except ValueError as e:

@@ -149,3 +149,33 @@ def test_table1_evidence_marks_verified_failing_and_missing_cells(tmp_path):
     assert e.loc[("medal", "sawyer_peg"), "evidence"] == "no results"
     md = evidence_markdown(e.reset_index())
     assert "**verified** (2 seeds, 0.5M)" in md and "no results (table1, 8M)" in md
+
+
+def test_gaps_are_not_evidence_and_no_published_curves_is_said():
+    """A published seed with missing evaluations before its first success is left out of the first-success range (a
+    gap is not 'no success yet'); a finished run with a missing evaluation in a checked window is not 'in band'."""
+    pub = published_five()
+    gap = pub[~((pub["seed"] == 4) & pub["step"].between(100_000, 300_000))]  # seed 4: nothing from 100k to 300k
+    assert list(C.first_success(gap, STEPS).index) == [0, 1, 2, 3]
+    ours = pd.concat([curve(ramp(230_000), 0), curve(ramp(290_000), 1)], ignore_index=True)
+    holed = ours[~((ours["seed"] == 1) & (ours["step"] == 150_000))]
+    v = C.whole_curve_verdict(holed, pub, STEPS, (0, 1))
+    assert v["status"] == "running" and v["reached"] == STEPS
+    with pytest.raises(ValueError, match="no published curves"):
+        C.whole_curve_verdict(ours, pub.iloc[:0], STEPS, (0, 1))
+
+
+@requires_data
+def test_evidence_survives_a_check_decided_before_its_window_is_full(tmp_path):
+    from harness.evidence import evidence_markdown, table1_evidence
+    from harness.results import load, load_published
+
+    status = {"state": "running", "step": 450_000, "total": 500_000, "steps_per_s": 20.0, "eta_s": 0.0,
+              "last_success": 1}
+    for s in (0, 1):  # naive on peg at 1.0 from 100k: its 400k-500k check already fails, whatever comes
+        write_run(tmp_path, "table1", "sawyer_peg", "naive", s, range(0, 450_001, 10_000),
+                  lambda step: {"deployed_success": 1.0 if step >= 100_000 else 0.0}, status)
+    e = table1_evidence(load(tmp_path), load_published()).set_index(["algo", "env"])
+    assert e.loc[("naive", "sawyer_peg"), "evidence"] == "fails"
+    assert "whatever the rest scores" in e.loc[("naive", "sawyer_peg"), "windows"]
+    assert "400k-500k running" in evidence_markdown(e.reset_index())

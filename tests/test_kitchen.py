@@ -345,3 +345,11 @@ def test_render():
         assert frame.shape == (48, 64, 3) and frame.dtype == np.uint8 and frame.std() > 0
     finally:
         e.close()
+
+
+def test_algorithms_that_ignore_the_dense_reward_are_refused(tmp_path, capsys):
+    """EARL trained kitchen's baselines on its dense reward: an algorithm that learns from 1[success] is refused."""
+    assert main(["run", "algo=fbrl", "env=kitchen", f"results={tmp_path}", "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "learns from 1[success]" in err and "naive, oracle" in err
+    assert not tmp_path.exists() or not list(tmp_path.iterdir())
