@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from harness.labels import COHORT_SEP  # joins a method and its suite when a selection holds several suites of it
 from harness.stats import bootstrap_mean_ci, standard_error
 
 OURS = "harness"
@@ -74,8 +75,6 @@ def with_runs(df: pd.DataFrame) -> pd.DataFrame:
     return df
 
 
-#: joins a method and the suite of its runs when a selection holds one method from several suites
-COHORT_SEP = " · "
 
 
 def separate_suites(df: pd.DataFrame) -> pd.DataFrame:

@@ -30,12 +30,12 @@ METHOD_COLORS: dict[str, str] = {
     "gail_oracle": "#332288", "risc": "#AA4499", "risc_no_tab": "#DDCC77", "vaprl_risc": "#44AA99",
     "risc_no_switching": "#88CCEE", "risc_no_timeout_bootstrap": "#DDCC77",  # the published name of risc_no_tab
 }
+#: a method split by suite (``harness.analysis.separate_suites``): "<algo> · <suite>"
+COHORT_SEP = " · "
 #: for names outside the table (a suite's variants): a deterministic pick from these, by name
 EXTRA_COLORS = ("#999933", "#CC6677", "#6699CC", "#997700", "#EE99AA", "#004488", "#994455", "#666666")
 
 
-#: a method split by suite (``harness.analysis.separate_suites``): "<algo> · <suite>"
-COHORT_SEP = " · "
 
 
 def method_color(name: str) -> str:

@@ -390,8 +390,9 @@ def build_plan(req: RunRequest) -> Plan:
                 MAX_STEPS)
     if keep % ckpt:
         raise ConfigError(f"keep_every ({keep}) must be a multiple of checkpoint_every ({ckpt})")
-    log_every = value("log_every", next(d for d in range(min(1000, eval_every), 0, -1) if eval_every % d == 0),
-                      MAX_STEPS)
+    divisor = next(d for d in range(min(1000, eval_every), 0, -1) if eval_every % d == 0)
+    # a row every eval_every steps where eval_every has no divisor from 100 to 1000 (a prime above 1000, say)
+    log_every = value("log_every", divisor if divisor >= min(100, eval_every) else eval_every, MAX_STEPS)
     if eval_every % log_every:
         raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
     suite_cfg = suite.get("config") or {}

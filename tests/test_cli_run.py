@@ -332,6 +332,8 @@ def test_defaults_follow_the_users_eval_every(tmp_path):
     assert (s.checkpoint_every, s.log_every) == (51_000, 1000)
     s = spec("eval_every=7")
     assert (s.checkpoint_every, s.log_every) == (50_001, 7)
+    s = spec("eval_every=1009")  # a prime: one diagnostics row per evaluation, not one per step
+    assert s.log_every == 1009
     s = spec()
     assert (s.eval_every, s.checkpoint_every, s.log_every) == (10_000, 50_000, 1000)
     with pytest.raises(Exception, match="must divide"):  # a value the user gave is still checked
