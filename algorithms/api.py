@@ -18,6 +18,7 @@ observation). Algorithms see the task only through :class:`Task` and :class:`Dem
 from __future__ import annotations
 
 import math
+import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, Protocol
@@ -169,7 +170,7 @@ def parse_int(name: str, value: Any) -> int:
     many; a value too long to show is cut in the message)."""
     text = str(value).strip().replace("_", "")
     shown = repr(value) if len(str(value)) <= 40 else f"{str(value)[:20]!r}... ({len(str(value))} characters)"
-    if text.lstrip("+-").isdigit():
+    if re.fullmatch(r"[+-]?[0-9]+", text):  # ASCII digits only (str.isdigit takes other scripts' digits too)
         if len(text) > 400:  # beyond any bound a setting declares (and Python's int() digit limit)
             raise ValueError(f"{name} is too large: {shown}")
         return int(text)
