@@ -78,18 +78,18 @@ def with_runs(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def separate_suites(df: pd.DataFrame) -> pd.DataFrame:
-    """``df`` where each (env, method) whose own runs come from more than one suite is split by suite: its ``algo``
-    becomes ``<algo> · <suite>``, so runs of different suites (other budgets, other settings: a 400-step smoke run
+    """``df`` where each method whose own runs come from more than one suite is split by suite (on every env): its
+    ``algo`` becomes ``<algo> · <suite>``, so runs of different suites (other budgets, other settings: a 400-step smoke run
     beside 1.5M-step ladder runs) are never averaged as seeds of one method. Published rows and methods from one suite
     keep their names. Undo with :func:`base_algo`."""
     if df.empty or "suite" not in df:
         return df
     ours = df["source"].fillna(OURS).eq(OURS) if "source" in df else pd.Series(True, index=df.index)
-    suites = df[ours].groupby(["env", "algo"])["suite"].nunique()
+    suites = df[ours].groupby("algo")["suite"].nunique()  # per method over the whole selection: one name on every env
     mixed = suites[suites > 1].index
     if mixed.empty:
         return df
-    hit = ours & pd.MultiIndex.from_frame(df[["env", "algo"]]).isin(mixed)
+    hit = ours & df["algo"].isin(mixed)
     df = df.copy()
     df["algo"] = df["algo"].astype(object)
     df.loc[hit, "algo"] = df.loc[hit, "algo"].astype(str) + COHORT_SEP + df.loc[hit, "suite"].astype(str)

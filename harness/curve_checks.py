@@ -188,6 +188,7 @@ def whole_curve_verdict(ours: pd.DataFrame, published: pd.DataFrame, steps: int,
     low, high = mean < bands["lower"], mean > bands["upper"]
     out = [(int(lo), "low" if low[lo] else "high") for lo in bands.index if low[lo] or high[lo]]
     reached = min((int(ours.loc[ours["seed"] == s, "step"].max()) if (ours["seed"] == s).any() else 0) for s in seeds)
+    furthest = max((int(ours.loc[ours["seed"] == s, "step"].max()) if (ours["seed"] == s).any() else 0) for s in seeds)
     done = reached >= steps and not mean.isna().any()  # a window with a missing evaluation is not "in band"
     status = "running" if not done else ("pass" if len(out) <= a else "fail")
     if not done and len(out) > a:
@@ -209,7 +210,7 @@ def whole_curve_verdict(ours: pd.DataFrame, published: pd.DataFrame, steps: int,
         fs_status = "running"
     fs_mean = most if least == most else float("nan")
     return {"status": status, "windows": len(bands), "allowance": a, "p_false_fail": p, "out": out,
-            "reached": reached, "first_success": [None if v >= censor else int(v) for v in fs],
+            "reached": reached, "furthest": furthest, "first_success": [None if v >= censor else int(v) for v in fs],
             "first_success_mean": fs_mean, "first_success_least": float(least), "first_success_band": (fsb["lower"], fsb["upper"]),
             "first_success_published": fsb["published"], "first_success_p_false_fail": fsb["p_false_fail"],
             "first_success_status": fs_status}
@@ -226,15 +227,16 @@ def whole_curve_text(v: dict) -> str:
     where = "; ".join(x for x in (f"too strong at {spans(highs)}" if highs else "",
                                   f"too weak at {spans(lows)}" if lows else "") if x)
     counted = f"{len(v['out'])} of {v['windows']} windows out, {v['allowance']} allowed"
-    if v["status"] == "running" and not v["reached"]:
+    if v["status"] == "running" and not v["furthest"]:
         return "not started"
-    head = v["status"] if v["status"] != "running" else f"running (at {v['reached']:,})"
+    span = f"{v['reached']:,}" if v["reached"] == v["furthest"] else f"{v['reached']:,}-{v['furthest']:,}"
+    head = v["status"] if v["status"] != "running" else f"running (at {span})"
     return f"{head}: {counted}" + (f"; {where}" if where else "")
 
 
 def first_success_text(v: dict) -> str:
     lo, hi = v["first_success_band"]
-    if v["first_success_status"] == "running" and not v["reached"]:
+    if v["first_success_status"] == "running" and not v["furthest"]:
         return f"not started; accepted mean {max(lo, 0) / 1000:.0f}k-{hi / 1000:.0f}k"
     ours = ", ".join("never" if s is None else f"{s // 1000}k" for s in v["first_success"])
     pub = ", ".join(f"{s // 1000}k" for s in sorted(v["first_success_published"]))

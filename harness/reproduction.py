@@ -213,7 +213,8 @@ def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000,
                 "window": f"{check.lo // 1000}k-{check.hi // 1000}k", "lo": check.lo, "hi": check.hi,
                 "published": check.mean, "published_min": check.min, "published_max": check.max,
                 "ours": v["ours"], "ours_per_seed": v["ours_per_seed"], "band": (v["lower"], v["upper"]),
-                "reached": v["reached"], "status": v["status"], "verdict": verdict_text(v, check, cell.steps),
+                "reached": v["reached"], "furthest": v["furthest"], "status": v["status"],
+                "verdict": verdict_text(v, check, cell.steps),
                 "calibration": check.calibration, **whole,
             })
     return pd.DataFrame(rows)

@@ -85,7 +85,9 @@ def test_running_checks_wait_unless_nothing_to_come_can_turn_them():
     assert (v["status"] == "fail") == (a < 2)
     # both seeds succeeded by 80k: the first-success mean is known, and too early, whatever comes
     assert v["first_success_status"] == "fail"
-    # a seed not started: nothing to say yet
+    one = C.whole_curve_verdict(ours[ours["seed"] == 0], pub, STEPS, (0, 1))  # seed 1 not started yet
+    assert C.whole_curve_text(one).startswith("running (at 0-150,000)")
+    # no seed started: nothing to say yet
     none = C.whole_curve_verdict(ours.iloc[:0], pub, STEPS, (0, 1))
     assert C.whole_curve_text(none) == "not started" and C.first_success_text(none).startswith("not started")
 
