@@ -238,7 +238,8 @@ def first_success_text(v: dict) -> str:
     lo, hi = v["first_success_band"]
     if v["first_success_status"] == "running" and not v["furthest"]:
         return f"not started; accepted mean {max(lo, 0) / 1000:.0f}k-{hi / 1000:.0f}k"
-    ours = ", ".join("never" if s is None else f"{s // 1000}k" for s in v["first_success"])
+    none = "none yet" if v["first_success_status"] == "running" else "never"
+    ours = ", ".join(none if s is None else f"{s // 1000}k" for s in v["first_success"])
     pub = ", ".join(f"{s // 1000}k" for s in sorted(v["first_success_published"]))
     side = ""
     if v["first_success_status"] == "fail":
