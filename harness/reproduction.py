@@ -19,6 +19,7 @@ import pandas as pd
 
 from harness import curve_checks as C
 from harness.curve_checks import CurveRule
+from algorithms.api import parse_int
 from harness.suites import ConfigError, load_suite
 
 METRIC = "deployed_success"
@@ -73,7 +74,8 @@ def load_ladder(suite: str) -> Ladder:
     try:
         widen = float(crit.get("widen", 0.1))
         rule = CurveRule(widen, float(crit.get("curve_alpha", CurveRule.alpha)),
-                         int(crit.get("first_success_widen", CurveRule.fs_widen)), int(d.get("eval_every", 10_000)))
+                         parse_int("first_success_widen", crit.get("first_success_widen", CurveRule.fs_widen)),
+                         parse_int("eval_every", d.get("eval_every", 10_000)))
     except (TypeError, ValueError) as e:
         raise ConfigError(f"suite {name!r}: criterion: {e}") from None
     if not (0 <= widen <= 1 and 0 < rule.alpha < 1 and rule.fs_widen >= 0):
