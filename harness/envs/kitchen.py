@@ -58,6 +58,7 @@ import numpy as np
 
 from harness.data import asset_path
 from harness.envs.base import EarlEnv, unpickle_env
+from harness.envs.mujoco_render import MujocoRendering
 from harness.envs.kitchen_task import COMPONENTS, INITIAL_STATES, KITCHEN_SPEC
 
 SCENE = ("adept_envs", "adept_envs", "franka", "assets", "franka_kitchen_jntpos_act_ab.xml")
@@ -87,8 +88,6 @@ REACH_SITES = {"microwave": "microhandle_site", "hinge_cabinet": "hinge_site2", 
                "light_switch": "light_site"}
 N_ROBOT, N_OBJ = 9, 14
 _N_NOISE = 2 * (N_ROBOT + N_OBJ)  # qp, qv, obj qp, obj qv noise: 46 uniforms per observation
-_GL_HINT = ("rendering needs an OpenGL backend: set MUJOCO_GL=egl (GPU / headless EGL) or MUJOCO_GL=osmesa "
-            "(software) before importing mujoco")
 
 
 def _inline(path: str) -> ET.Element:
@@ -227,7 +226,7 @@ def obs_reward(obs):
     return _OBS_REWARD(obs)
 
 
-class KitchenEnv(EarlEnv):
+class KitchenEnv(MujocoRendering, EarlEnv):
     """EARL ``kitchen`` (task ``all_pairs``): close the two objects that a reset opened (see the module docstring).
 
     ``reset`` options: ``{"goal": g}`` (23), ``{"state": obs}`` (a 46-dim observation: qpos set from its state half,
@@ -378,22 +377,9 @@ class KitchenEnv(EarlEnv):
     def render(self):
         """An RGB frame (H, W, 3 uint8) from EARL's viewer camera (``Kitchen.viewer_setup``: distance 3, elevation
         -30, azimuth 120, looking at the model centre)."""
-        if self.render_mode != "rgb_array":
-            raise RuntimeError(f"render() needs render_mode='rgb_array' (got {self.render_mode!r})")
-        if self._renderer is None:
-            try:
-                self._renderer = mujoco.Renderer(self.model, *self._render_size)
-            except Exception as e:  # no GL context can be created
-                raise RuntimeError(f"cannot create a MuJoCo renderer ({e}); {_GL_HINT}") from e
+        if self._camera is None:
             cam = mujoco.MjvCamera()
             mujoco.mjv_defaultFreeCamera(self.model, cam)
             cam.distance, cam.elevation, cam.azimuth = 3.0, -30.0, 120.0
             self._camera = cam
-        self._renderer.update_scene(self.data, camera=self._camera)
-        return self._renderer.render()
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        super().close()
+        return self._rgb_frame(self._camera)

@@ -54,20 +54,17 @@ from metaworld.envs.sawyer_peg_insertion_side_v3 import SawyerPegInsertionSideEn
 
 from harness.data import asset_path
 from harness.envs.base import EarlEnv, unpickle_env
+from harness.envs.mujoco_render import MujocoRendering
 from harness.envs.sawyer_tasks import DOOR_SPEC, PEG_GOAL_STATES, PEG_SPEC
 
 _MOCAP_QUAT = np.array([1.0, 0.0, 1.0, 0.0])  # Meta-World's fixed gripper orientation
 _HAND_SETTLE_STEPS = 50  # Meta-World's _reset_hand(steps=50)
-_GL_HINT = (
-    "rendering needs an OpenGL backend: set MUJOCO_GL=egl (GPU / headless EGL) or MUJOCO_GL=osmesa "
-    "(software) before importing mujoco"
-)
 
 
-class _SawyerEarl(EarlEnv):
+class _SawyerEarl(MujocoRendering, EarlEnv):
     """Shared EARL Sawyer logic, mixed in *before* a Meta-World 3 env class.
 
-    ``class SawyerXEnv(_SawyerEarl, MetaWorldXEnvV3)``: the MRO is ours -> ``EarlEnv`` -> Meta-World's
+    ``class SawyerXEnv(_SawyerEarl, MetaWorldXEnvV3)``: the MRO is ours -> ``MujocoRendering`` -> ``EarlEnv`` -> Meta-World's
     env -> ``SawyerXYZEnv`` -> ``MujocoEnv`` -> ``gym.Env``. ``__init__`` runs Meta-World's constructor
     (which builds the MuJoCo model from :attr:`model_name`, overridden to EARL's file, and applies
     Meta-World 3's weld settings) and then ``EarlEnv.__init__`` (EARL's spaces). ``reset``/``step``/
@@ -293,21 +290,7 @@ class _SawyerEarl(EarlEnv):
     # -- rendering ---------------------------------------------------------------------------------
     def render(self):
         """An RGB frame (H, W, 3 uint8) from EARL's camera via ``mujoco.Renderer`` (``render_mode="rgb_array"``)."""
-        if self.render_mode != "rgb_array":
-            raise RuntimeError(f"render() needs render_mode='rgb_array' (got {self.render_mode!r})")
-        if self._renderer is None:
-            try:
-                self._renderer = mujoco.Renderer(self.model, *self._render_size)
-            except Exception as e:  # no GL context can be created
-                raise RuntimeError(f"cannot create a MuJoCo renderer ({e}); {_GL_HINT}") from e
-        self._renderer.update_scene(self.data, camera=self._camera)
-        return self._renderer.render()
-
-    def close(self):
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
-        super().close()
+        return self._rgb_frame(self._camera)
 
 
 class SawyerDoorEnv(_SawyerEarl, SawyerDoorCloseEnvV3):
