@@ -82,6 +82,40 @@ def process_threads(plan: Plan) -> int:
     return max(1, (os.cpu_count() or 1) // plan.workers)
 
 
+#: freed heap that glibc keeps for reuse in a training process (:func:`keep_freed_memory`)
+KEEP_FREED_BYTES = 256 << 20
+
+
+def keep_freed_memory(limit: int = KEEP_FREED_BYTES) -> bool:
+    """Let glibc's malloc keep up to ``limit`` bytes of freed heap for reuse instead of handing it back to the OS.
+
+    A CPU training step allocates its activations afresh and frees them at its end. With glibc's default trim threshold
+    (128 KiB, raised only as large blocks are freed) the heap shrinks after each update and the next one page-faults
+    the memory back in, a fresh page at a time: a ReLU's gradient takes 100-200 us inside the update against 15 on its
+    own, and one MEDAL update about 1.3x as long (``harness bench update allocator=glibc`` against the default, in
+    docs/performance.md). Results are the same bit for bit. Returns False where the C library has no ``mallopt`` (not
+    glibc), which leaves the allocator as it is."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c"))
+        return bool(libc.mallopt(-1, int(limit)))  # -1: M_TRIM_THRESHOLD
+    except (OSError, AttributeError, TypeError):
+        return False
+
+
+#: ``allocator=`` of the benches: keep (as training processes run), glibc (its defaults, for comparison)
+ALLOCATORS = ("keep", "glibc")
+
+
+def use_allocator(name: str) -> None:
+    if name not in ALLOCATORS:
+        raise ConfigError(f"unknown allocator {name!r}; known: {', '.join(ALLOCATORS)}")
+    if name == "keep":
+        keep_freed_memory()
+
+
 def run_local(plan: Plan, command: str, work: Work) -> list[str]:
     from harness.interrupts import RunInterrupted, RunLocked, sigterm_as_interrupt
 

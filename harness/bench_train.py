@@ -16,6 +16,7 @@ import torch
 
 from algorithms.api import DemoSet
 from algorithms.core.sac import UPDATES, set_update_mode
+from harness.backends import use_allocator
 from harness.command_keys import BENCH
 from harness.envs import check_env, get_spec, load_env_demos
 from harness.protocol import Interaction
@@ -84,6 +85,7 @@ def bench_train_cli(ov: dict[str, str]) -> int:
     update = ov.get("update", "default")
     if update not in UPDATES:
         raise UsageError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
+    use_allocator(ov.get("allocator", "keep"))
     if "threads" in ov:
         torch.set_num_threads(optional_integer("threads", ov["threads"], 1, 1))
     bench_train(algo, env, optional_integer("members", ov.get("members"), 1, 1), optional_integer("steps", ov.get("steps"), 1000, 1),

@@ -8,6 +8,7 @@
     harness data scripted [env=NAME] [out=DIR]    scripted demonstrations (demo_source=scripted)
     harness bench env [envs=a,b] [steps=N]
     harness bench train algo=medal env=sawyer_door members=E
+    harness bench update algo=medal env=sawyer_door [update=default]   one SAC update against its matmul ceiling
     harness bench matmul [members=E] [repeats=5]   member-batched products of the SAC update
     harness bench app [runs=100] [evals=300] [repeats=3] [results=DIR]   dashboard page-load time
     harness report [suite=NAME] [results=DIR] [out=DIR] [doc=FILE]
@@ -109,6 +110,10 @@ def cmd_bench(args) -> int:
         from harness.bench_train import bench_train_cli
 
         return bench_train_cli(parse_overrides(args.overrides))
+    if args.what == "update":
+        from harness.bench_update import bench_update_cli
+
+        return bench_update_cli(parse_overrides(args.overrides))
     if args.what == "matmul":
         from harness.bench import bench_matmul
 
@@ -120,7 +125,7 @@ def cmd_bench(args) -> int:
         from harness.bench_app import bench_app_cli
 
         return bench_app_cli(parse_overrides(args.overrides, set(keys.BENCH["app"])))
-    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, matmul, app")
+    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, update, matmul, app")
 
 
 def cmd_run(args) -> int:
@@ -234,7 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
                                       "time", formatter_class=raw,
                        epilog="\n\n".join(f"harness bench {what}: " + keys_help(table, False)
                                             for what, table in keys.BENCH.items()))
-    b.add_argument("what", choices=["env", "train", "matmul", "app"])
+    b.add_argument("what", choices=["env", "train", "update", "matmul", "app"])
     b.add_argument("overrides", nargs="*")
     b.set_defaults(fn=cmd_bench)
     return p

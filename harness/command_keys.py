@@ -45,6 +45,15 @@ BENCH: dict[str, KeyHelp] = {
         "threads": ("torch's default", "torch threads"), "env_workers": ("0", "env worker processes"),
         "seed_steps": ("1000", "the seed phase (no updates), run untimed before the timed steps"),
         "update": ("default", "SAC updates: " + ", ".join(UPDATES)),
+        "allocator": ("keep", "keep: freed heap kept for reuse, as training runs (harness.backends.keep_freed_memory); "
+                              "glibc: its defaults"),
+    },
+    "update": {
+        "algo": ("medal", "algorithm (its first SAC agent)"), "env": ("sawyer_door", "environment (obs and action sizes)"),
+        "members": ("1", "seeds in the agent"), "update": ("default", "SAC updates: " + ", ".join(UPDATES)),
+        "threads": ("1", "torch threads"), "repeats": ("5", "timed rounds (the median is reported)"),
+        "n": ("50", "updates per round"),
+        "allocator": ("keep", "keep: freed heap kept for reuse, as training runs; glibc: its defaults"),
     },
     "matmul": {"members": ("2", "seeds per product"), "repeats": ("5", "timed repeats")},
     "app": {"runs": ("100", "synthetic runs"), "evals": ("300", "evaluations per run"), "repeats": ("3", "page loads"),

@@ -30,6 +30,7 @@ import torch
 import yaml
 
 from algorithms.core.sac import UPDATES
+from harness.backends import keep_freed_memory
 from harness.envs import ENVS, UnknownEnvError, check_env, demos_record, env_info, load_env_demos
 from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec
@@ -552,6 +553,7 @@ def run_group(spec: RunSpec, command: str, queue=None, threads: int | None = Non
 
     if threads:
         torch.set_num_threads(threads)
+    keep_freed_memory()  # same results, fewer page faults per update
     dirs = spec.member_dirs()
     queue = queue if queue is not None else interrupts.progress_queue
 

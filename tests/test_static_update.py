@@ -116,24 +116,26 @@ def test_compiled_static_update_equals_the_uncompiled_one(device):
 
 
 @requires_data
-def test_harness_run_with_static_updates(tmp_path, monkeypatch):
-    """``update=static`` reaches every SAC agent of the run (MEDAL: forward and backward) and is recorded; the curve
-    agrees with the default update's until the updates start (bitwise), and within rounding after."""
+@pytest.mark.parametrize("update, switch", [("static", "use_static_update"), ("autograd", "use_autograd_update")])
+def test_harness_run_with_other_updates(tmp_path, monkeypatch, update, switch):
+    """``update=static`` / ``update=autograd`` reaches every SAC agent of the run (MEDAL: forward and backward) and is
+    recorded; the curve agrees with the default update's until the updates start (bitwise), and within rounding
+    after."""
     words = ["algo=medal", "env=tabletop_manipulation", "steps=300", "eval_every=100", "eval_episodes=1",
              "medal.seed_steps=100", "medal.batch_size=16"]
     switched = []
-    real = SAC.use_static_update
-    monkeypatch.setattr(SAC, "use_static_update", lambda self, compile=False: (switched.append(self),
-                                                                                real(self, compile))[1])
+    real = getattr(SAC, switch)
+    monkeypatch.setattr(SAC, switch, lambda self, *args: (switched.append(self), real(self, *args))[1])
     tables = {}
-    for update in ("default", "static"):
-        (spec,) = plan_words([*words, f"update={update}", f"results={tmp_path / update}"]).groups
-        assert spec.update == update and run_group(spec, "test") is None
+    for mode in ("default", update):
+        (spec,) = plan_words([*words, f"update={mode}", f"results={tmp_path / mode}"]).groups
+        assert spec.update == mode and run_group(spec, "test") is None
         run = spec.member_dirs()[0]
-        assert yaml.safe_load((run / "run.yaml").read_text())["update"] == update
-        tables[update] = pd.read_parquet(run / "evals.parquet").query("metric == 'deployed_return'")
-    assert len(switched) == 2 and all(agent.static for agent in switched)  # MEDAL's forward and backward agents
-    a, b = (tables[u].set_index("step").value for u in ("default", "static"))
+        assert yaml.safe_load((run / "run.yaml").read_text())["update"] == mode
+        tables[mode] = pd.read_parquet(run / "evals.parquet").query("metric == 'deployed_return'")
+    assert len(switched) == 2  # MEDAL's forward and backward agents
+    assert all(agent.static if update == "static" else agent._update_fn == agent._update_autograd for agent in switched)
+    a, b = (tables[u].set_index("step").value for u in ("default", update))
     assert a.loc[0] == b.loc[0] and a.loc[100] == b.loc[100]  # no update before step 100
     np.testing.assert_allclose(b.to_numpy(), a.to_numpy(), rtol=1e-3, atol=1e-3)
 

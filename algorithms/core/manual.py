@@ -123,16 +123,20 @@ def critic_forward(critic, obs: Tensor, action: Tensor) -> tuple[Tensor, tuple]:
     return q.view(obs.shape[0], critic.heads.copies, -1), (trunk_cache, mlp_cache, feat.shape[-1])
 
 
-def critic_backward(critic, cache: tuple, d_q: Tensor, weights: bool = True) -> tuple[list[Tensor], Tensor]:
-    """(parameter gradients, or [] when ``weights`` is False; dL/d action (E, B, A)) from dL/d heads (E, 2, B)."""
+def critic_backward(critic, cache: tuple, d_q: Tensor, weights: bool = True) -> tuple[list[Tensor], Tensor | None]:
+    """From dL/d heads (E, 2, B): ``weights`` True, the parameter gradients (and None); False, [] and dL/d action
+    (E, B, A) (the actor loss's path)."""
     trunk_cache, mlp_cache, n_feat = cache
     E, copies, B = d_q.shape
-    cols = slice(0, None) if weights else slice(n_feat, None)  # the features too when training the critic
+    trunk = _trunk(critic)
+    # training the critic needs the input's gradient only for a trunk (all columns: the shapes its results were
+    # computed with since the first runs, so resumed runs go on bit for bit)
+    cols = slice(n_feat, None) if not weights else slice(0, None) if trunk else None
     grads, d_in = mlp_backward(critic.heads, mlp_cache, d_q.reshape(E * copies, B, 1), weights, cols)
-    d_in = d_in.view(E, copies, B, -1).sum(dim=1)  # every head reads the same input
+    if d_in is not None:
+        d_in = d_in.view(E, copies, B, -1).sum(dim=1)  # every head reads the same input
     if not weights:
         return [], d_in
-    trunk = _trunk(critic)
     if trunk:
         grads = trunk_backward(trunk, trunk_cache, d_in[..., :n_feat]) + grads
-    return grads, d_in[..., n_feat:]
+    return grads, None

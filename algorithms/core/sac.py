@@ -62,6 +62,50 @@ def squashed_gaussian_log_prob(u: torch.Tensor, eps: torch.Tensor, log_std: torc
     return (normal - log_det).sum(-1)
 
 
+def squashed_gaussian_backward(d_action, d_log_prob, action, std, eps, log_std_raw, bounds) -> torch.Tensor:
+    """The gradient of a = tanh(mu + sigma * eps) and its log pi with respect to the actor's raw output (mean, log sigma
+    before the clamp), from dL/da and dL/d log pi: d log pi / du = 2 tanh(u) (the tanh Jacobian's term),
+    d log pi / d log sigma = -1 at fixed eps, and no gradient where the clamp to ``bounds`` is active."""
+    d_u = d_log_prob * 2.0 * action + d_action * (1.0 - action * action)
+    in_range = (log_std_raw >= bounds[0]) & (log_std_raw <= bounds[1])
+    d_log_std = (d_u * std * eps - d_log_prob) * in_range
+    return torch.cat([d_u, d_log_std], -1)
+
+
+# ---------------------------------------------------------------------------------------------------------------------
+# The three losses of a SAC update (§3.2), per member (E,). Both update paths use them: ``update="autograd"`` through
+# torch.autograd, the others beside the hand-derived gradient written under each one. Edit a loss here, then its
+# gradient (tests/test_core_sac.py compares the two paths), or train with update=autograd, which needs no gradient.
+
+
+def critic_loss(q: torch.Tensor, target_q: torch.Tensor) -> torch.Tensor:
+    """0.5 * (MSE(Q1, y) + MSE(Q2, y)) for the heads q (E, 2, B) and the TD target y (E, B)."""
+    return 0.5 * (q - target_q.unsqueeze(1)).square().mean(dim=2).sum(dim=1)
+
+
+def critic_loss_grad(q: torch.Tensor, target_q: torch.Tensor) -> torch.Tensor:
+    """d critic_loss / d q = (q - y) / B, (E, 2, B)."""
+    return (q - target_q.unsqueeze(1)) / q.shape[2]
+
+
+def actor_loss(alpha: torch.Tensor, log_prob: torch.Tensor, q_pi: torch.Tensor) -> torch.Tensor:
+    """mean_b (alpha * log pi(a|o) - min_j Q_j(o, a)) for a ~ pi(.|o): alpha (E,), log_prob (E, B), q_pi (E, 2, B)."""
+    return (alpha[:, None] * log_prob - q_pi.min(dim=1).values).mean(dim=1)
+
+
+def actor_loss_grads(alpha: torch.Tensor, q_pi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(d actor_loss / d q_pi: -1/B at the smaller head, 0 at the other, (E, 2, B); d actor_loss / d log pi: alpha / B,
+    (E, 1, 1))."""
+    B = q_pi.shape[2]
+    d_q = torch.zeros_like(q_pi).scatter_(1, q_pi.min(dim=1).indices.unsqueeze(1), -1.0 / B)
+    return d_q, (alpha / B)[:, None, None]
+
+
+def temperature_loss(log_alpha: torch.Tensor, log_prob: torch.Tensor, target_entropy: float) -> torch.Tensor:
+    """alpha * mean_b (-log pi(a|o) - H_target); its gradient with respect to log alpha is the loss itself."""
+    return log_alpha.exp() * (-log_prob - target_entropy).mean(dim=1)
+
+
 class Actor(nn.Module):
     """[trunk] -> 256 -> ReLU -> 256 -> ReLU -> 2|A| (mean, log sigma); squashed Gaussian policy (§3.1)."""
 
@@ -123,7 +167,7 @@ class SAC:
         self.act_generators = member_generators(self.seeds, self.device, Stream.SAC_ACT)
         self.update_generators = member_generators(self.seeds, self.device, Stream.SAC_UPDATE)
         self.static = False  # see use_static_update
-        self._static_fn = self._update
+        self._update_fn = self._update
         self._all_members = torch.ones(E, dtype=torch.bool, device=self.device)
 
     def use_static_update(self, compile: bool = False) -> None:
@@ -135,7 +179,24 @@ class SAC:
         self.static = True
         if compile:
             mode = "reduce-overhead" if self.device.type == "cuda" else None
-            self._static_fn = torch.compile(self._update, mode=mode, dynamic=False)
+            self._update_fn = torch.compile(self._update, mode=mode, dynamic=False)
+
+    def use_update(self, update: str) -> None:
+        """Run every later update in mode ``update``, one of :data:`UPDATES` (the default path is where an agent
+        starts)."""
+        if update == "autograd":
+            self.use_autograd_update()
+        elif update in ("static", "compiled"):
+            self.use_static_update(compile=update == "compiled")
+        elif update != "default":
+            raise ValueError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
+
+    def use_autograd_update(self) -> None:
+        """Run every later update through torch.autograd (:meth:`_update_autograd`): the same losses and optimizer
+        kernels, gradients from the module forwards instead of :mod:`manual`. Slower on a CPU; the path to edit first
+        when changing a loss. Equal to the default path within float rounding."""
+        self.static = False
+        self._update_fn = self._update_autograd
 
     @property
     def alpha(self) -> torch.Tensor:
@@ -199,9 +260,10 @@ class SAC:
         reward: optional (E,B) replacement for batch["reward"] (e.g. MEDAL's discriminator reward, §9.6).
         Returns per-member metrics (E,) as tensors (no host sync).
 
-        Gradients come from the hand-written backward passes of :mod:`manual` (no autograd graph). The actor is
-        evaluated once on [o'; o]: its parameters do not change before the actor step, so the target's next action and
-        the actor loss's action come from one forward pass, as they would from two.
+        Gradients come from the hand-written backward passes of :mod:`manual` (no autograd graph; through autograd
+        after :meth:`use_autograd_update`). The actor is evaluated once on [o'; o]: its parameters do not change before
+        the actor step, so the target's next action and the actor loss's action come from one forward pass, as they
+        would from two.
         """
         mask_host = host_mask(mask, self.num_members)
         B = batch["obs"].shape[1]
@@ -210,80 +272,106 @@ class SAC:
         reward = batch["reward"] if reward is None else reward
         if self.static:
             keep = self._all_members if mask_host is None else torch.as_tensor(mask_host, device=self.device)
-            return self._static_fn(batch, reward, noise, keep)
-        return self._update(batch, reward, noise, mask_host)
+            return self._update_fn(batch, reward, noise, keep)
+        return self._update_fn(batch, reward, noise, mask_host)
 
     def _update(self, batch: dict, reward: torch.Tensor, noise: torch.Tensor, mask) -> dict[str, torch.Tensor]:
-        """The update after its noise draw. ``mask``: a host bool array or None (per-member optimizer kernels: the
-        default path), or a bool tensor on the device (the static path, see :meth:`use_static_update`)."""
-        cfg = self.cfg
-        obs, action = batch["obs"], batch["action"]
+        """The update after its noise draw, with hand-derived gradients. ``mask``: a host bool array or None
+        (per-member optimizer kernels: the default path), or a bool tensor on the device (the static path, see
+        :meth:`use_static_update`)."""
+        obs = batch["obs"]
         B = obs.shape[1]
         alpha = self.alpha
-        if isinstance(mask, torch.Tensor):
-            def opt_step(opt, grads):
-                opt.step_masked(mask, grads)
-
-            def target_step():
-                polyak_update_masked(self.target_params, self.critic_opt.members, cfg.tau, mask)
-        else:
-            def opt_step(opt, grads):
-                opt.step(mask, grads)
-
-            def target_step():
-                polyak_update(self.target_params, self.critic_opt.members, cfg.tau, mask)
-
         actor_out, actor_cache = manual.actor_forward(self.actor, torch.cat([batch["next_obs"], obs], dim=1))
         mean, log_std_raw = actor_out.chunk(2, dim=-1)
-        log_std = log_std_raw.clamp(cfg.log_std_min, cfg.log_std_max)
-
-        # 1. critic: 0.5 * (MSE1 + MSE2) per member
+        log_std = log_std_raw.clamp(self.cfg.log_std_min, self.cfg.log_std_max)
         target_q = self._td_target(batch, reward, mean[:, :B], log_std[:, :B], noise[:, 0])
-        q, critic_cache = manual.critic_forward(self.critic, obs, action)  # (E, 2, B)
-        diff = q - target_q.unsqueeze(1)
-        critic_loss = 0.5 * diff.square().mean(dim=2).sum(dim=1)
-        critic_grads, _ = manual.critic_backward(self.critic, critic_cache, diff / B)
-        opt_step(self.critic_opt, critic_grads)
+        loss_q, q = self._update_critic(obs, batch["action"], target_q, mask)
+        loss_pi = self._update_actor(obs, alpha, mean[:, B:], log_std_raw[:, B:], log_std[:, B:], actor_cache,
+                                     noise[:, 1], mask)
+        loss_alpha, log_prob = self._update_temperature(obs, noise[:, 2], mask)
+        self._update_target(mask)
+        return self._metrics(loss_q, loss_pi, loss_alpha, q, target_q, log_prob, reward)
 
-        # 2. actor: mean(alpha * log pi(a|o) - min Q(o, a)), a = tanh(u), u = mu + sigma * eps, with the updated critic
-        # (gradients reach the actor's parameters only)
-        mu, ls, eps = mean[:, B:], log_std[:, B:], noise[:, 1]
-        std = ls.exp()
-        u = mu + std * eps
-        new_action, log_prob = torch.tanh(u), squashed_gaussian_log_prob(u, eps, ls)
-        q_pi, q_cache = manual.critic_forward(self.critic, obs, new_action)
-        q_min = q_pi.min(dim=1)
-        actor_loss = (alpha[:, None] * log_prob - q_min.values).mean(dim=1)
-        d_q = torch.zeros_like(q_pi).scatter_(1, q_min.indices.unsqueeze(1), -1.0 / B)
+    def _update_critic(self, obs, action, target_q, mask) -> tuple[torch.Tensor, torch.Tensor]:
+        """1. critic: :func:`critic_loss` at the batch's (o, a), gradients back through both heads and the trunk;
+        returns the loss and the heads' values (E, 2, B)."""
+        q, cache = manual.critic_forward(self.critic, obs, action)  # (E, 2, B)
+        grads, _ = manual.critic_backward(self.critic, cache, critic_loss_grad(q, target_q))
+        self._optimizer_step(self.critic_opt, grads, mask)
+        return critic_loss(q, target_q), q
+
+    def _update_actor(self, obs, alpha, mean, log_std_raw, log_std, actor_cache, eps, mask) -> torch.Tensor:
+        """2. actor: :func:`actor_loss` with a = tanh(mu + sigma * eps) from the actor's output at o (rows B: of the
+        forward pass on [o'; o]) and the critic just updated; gradients reach the actor's parameters only."""
+        B = obs.shape[1]
+        std = log_std.exp()
+        u = mean + std * eps
+        action, log_prob = torch.tanh(u), squashed_gaussian_log_prob(u, eps, log_std)
+        q_pi, q_cache = manual.critic_forward(self.critic, obs, action)
+        d_q, d_log_prob = actor_loss_grads(alpha, q_pi)
         _, d_action = manual.critic_backward(self.critic, q_cache, d_q, weights=False)
-        d_log_prob = (alpha / B)[:, None, None]
-        # d log pi / du = 2 tanh(u) (from the tanh Jacobian); d log pi / d log sigma = -1 at fixed eps
-        d_u = d_log_prob * 2.0 * new_action + d_action * (1.0 - new_action * new_action)
-        in_range = (log_std_raw[:, B:] >= cfg.log_std_min) & (log_std_raw[:, B:] <= cfg.log_std_max)
-        d_log_std = (d_u * std * eps - d_log_prob) * in_range
-        d_out = torch.cat([d_u, d_log_std], -1)
-        opt_step(self.actor_opt, manual.actor_backward(self.actor, actor_cache, d_out, slice(B, None)))
+        bounds = (self.cfg.log_std_min, self.cfg.log_std_max)
+        d_out = squashed_gaussian_backward(d_action, d_log_prob, action, std, eps, log_std_raw, bounds)
+        self._optimizer_step(self.actor_opt, manual.actor_backward(self.actor, actor_cache, d_out, slice(B, None)), mask)
+        return actor_loss(alpha, log_prob, q_pi)
 
-        # 3. temperature: FRESH sample from the updated actor; loss mean(alpha * (-log pi - H_target)), whose gradient
-        # with respect to log alpha is the loss itself
-        fresh_mean, fresh_log_std = self.actor(obs)
-        u = fresh_mean + fresh_log_std.exp() * noise[:, 2]
-        fresh_log_prob = squashed_gaussian_log_prob(u, noise[:, 2], fresh_log_std)
-        alpha_loss = self.log_alpha.exp() * (-fresh_log_prob - self.target_entropy).mean(dim=1)
-        opt_step(self.alpha_opt, [alpha_loss])
+    def _update_temperature(self, obs, eps, mask) -> tuple[torch.Tensor, torch.Tensor]:
+        """3. temperature: :func:`temperature_loss` on a FRESH sample from the updated actor; returns the loss and the
+        sample's log pi (E, B)."""
+        mean, log_std = self.actor(obs)
+        log_prob = squashed_gaussian_log_prob(mean + log_std.exp() * eps, eps, log_std)
+        loss = temperature_loss(self.log_alpha, log_prob, self.target_entropy)
+        self._optimizer_step(self.alpha_opt, [loss], mask)
+        return loss, log_prob
 
-        # 4. target critic
-        target_step()
+    def _update_target(self, mask) -> None:
+        """4. target critic: Polyak averaging toward the critic at rate tau."""
+        if isinstance(mask, torch.Tensor):
+            polyak_update_masked(self.target_params, self.critic_opt.members, self.cfg.tau, mask)
+        else:
+            polyak_update(self.target_params, self.critic_opt.members, self.cfg.tau, mask)
 
+    @staticmethod
+    def _optimizer_step(opt: MemberAdam, grads, mask) -> None:
+        if isinstance(mask, torch.Tensor):
+            opt.step_masked(mask, grads)
+        else:
+            opt.step(mask, grads)
+
+    def _update_autograd(self, batch: dict, reward: torch.Tensor, noise: torch.Tensor, mask) -> dict[str, torch.Tensor]:
+        """The same update, losses and order through torch.autograd: module forwards, ``torch.autograd.grad``.
+        The actor runs three times here (target sample, actor loss, fresh temperature sample) where :meth:`_update`
+        runs it twice."""
+        obs = batch["obs"]
+        alpha = self.alpha
+        target_q = self.td_target(batch, reward, noise[:, 0])
+        with torch.enable_grad():
+            q = self.critic(obs, batch["action"])
+            loss_q = critic_loss(q, target_q)
+            self._optimizer_step(self.critic_opt, torch.autograd.grad(loss_q.sum(), self.critic_opt.params), mask)
+            action, log_prob = self.actor.sample(obs, noise[:, 1])
+            loss_pi = actor_loss(alpha, log_prob, self.critic(obs, action))
+            self._optimizer_step(self.actor_opt, torch.autograd.grad(loss_pi.sum(), self.actor_opt.params), mask)
+            with torch.no_grad():
+                _, fresh_log_prob = self.actor.sample(obs, noise[:, 2])
+            loss_alpha = temperature_loss(self.log_alpha, fresh_log_prob, self.target_entropy)
+            self._optimizer_step(self.alpha_opt, torch.autograd.grad(loss_alpha.sum(), self.alpha_opt.params), mask)
+        self._update_target(mask)
+        return self._metrics(loss_q.detach(), loss_pi.detach(), loss_alpha.detach(), q.detach(), target_q,
+                             fresh_log_prob, reward)
+
+    def _metrics(self, loss_q, loss_pi, loss_alpha, q, target_q, log_prob, reward) -> dict[str, torch.Tensor]:
+        """Per-member (E,) diagnostics of one update (no host sync)."""
         return {
-            "critic_loss": critic_loss,
-            "actor_loss": actor_loss,
-            "alpha_loss": alpha_loss,
+            "critic_loss": loss_q,
+            "actor_loss": loss_pi,
+            "alpha_loss": loss_alpha,
             "alpha": self.alpha,
             "q1": q[:, 0].mean(dim=1),
             "target_q": target_q.mean(dim=1),
-            "log_prob": fresh_log_prob.mean(dim=1),
-            "entropy": -fresh_log_prob.mean(dim=1),
+            "log_prob": log_prob.mean(dim=1),
+            "entropy": -log_prob.mean(dim=1),
             "batch_reward": reward.mean(dim=1),
         }
 
@@ -317,8 +405,9 @@ class SAC:
         load_generator_states(self.update_generators, state["update_generators"])
 
 
-#: how SAC updates run: default (per-member optimizer kernels), static (SAC.use_static_update), compiled (+ torch.compile)
-UPDATES = ("default", "static", "compiled")
+#: how SAC updates run: default (per-member optimizer kernels), static (SAC.use_static_update), compiled (+ torch.compile),
+#: autograd (SAC.use_autograd_update: the losses through torch.autograd)
+UPDATES = ("default", "static", "compiled", "autograd")
 
 
 def use_static_updates(algo, compile: bool = False) -> int:
@@ -331,8 +420,14 @@ def use_static_updates(algo, compile: bool = False) -> int:
 
 
 def set_update_mode(algo, update: str) -> int:
-    """Run ``algo``'s SAC updates in mode ``update`` (one of :data:`UPDATES`): nothing to do for the default, else
-    :func:`use_static_updates` (compiled: through ``torch.compile``). Returns how many agents were switched."""
+    """Run ``algo``'s SAC updates in mode ``update`` (one of :data:`UPDATES`): nothing to do for the default; autograd:
+    :meth:`SAC.use_autograd_update` on every agent; else :func:`use_static_updates` (compiled: through
+    ``torch.compile``). Returns how many agents were switched."""
     if update not in UPDATES:
         raise ValueError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
-    return 0 if update == "default" else use_static_updates(algo, compile=update == "compiled")
+    if update == "default":
+        return 0
+    agents = [a for a in vars(algo).values() if isinstance(a, SAC)]
+    for agent in agents:
+        agent.use_update(update)
+    return len(agents)

@@ -1,0 +1,48 @@
+"""``harness bench update``: the matmul ceiling replays exactly the products of one SAC update, and the split inside
+the update accounts for its time. Speeds are measured by the bench, never asserted here."""
+
+import pytest
+import torch
+
+from algorithms.core import SAC, SACConfig
+from harness.backends import keep_freed_memory, use_allocator
+from harness.bench_update import measure_update
+from harness.words import ConfigError
+
+
+@pytest.mark.parametrize("use_trunk, products", [(True, 37), (False, 28)])
+@pytest.mark.parametrize("update", ["default", "static", "autograd"])
+def test_ceiling_replays_the_update_s_own_products(use_trunk, products, update):
+    """Counted by hand from sac.SAC._update: forwards of the actor on [o'; o] (4 with the trunk), the target critic
+    (4), the critic (4), the critic at pi's action (4), the actor for the temperature (4); backwards of the critic (3
+    weight, 3 input, 1 trunk weight), of dQ/da (3 input) and of the actor (3 weight, 3 input, 1 trunk weight). Without
+    the trunk: 5 forward and 2 trunk-weight products fewer, and neither network's input gradient (2 more). The split exists for the manual eager paths only."""
+    agent = SAC(5, 2, [0, 1], SACConfig(hidden_dim=16, feature_dim=8, use_trunk=use_trunk, batch_size=8))
+    r = measure_update(agent, update, repeats=1, n=2)
+    assert r["products"] == products
+    assert r["update_ms"] > 0 and r["ceiling_ms"] > 0 and r["ratio"] > 0
+    if update == "autograd":
+        assert r["split_ms"] == {} and agent._update_fn == agent._update_autograd
+    else:
+        assert set(r["split_ms"]) == {"products", "optimizer", "target", "sampling", "other"}
+        assert all(v >= 0 for v in r["split_ms"].values())
+
+
+def test_keep_freed_memory_leaves_results_unchanged():
+    """The allocator setting of every training process changes where memory comes from, never a value."""
+    def run():
+        agent = SAC(5, 2, [3], SACConfig(hidden_dim=16, feature_dim=8, batch_size=8))
+        g = torch.Generator().manual_seed(0)
+        batch = {"obs": torch.randn(1, 8, 5, generator=g), "next_obs": torch.randn(1, 8, 5, generator=g),
+                 "action": torch.rand(1, 8, 2, generator=g) * 2 - 1, "reward": torch.rand(1, 8, generator=g),
+                 "terminal": torch.zeros(1, 8, dtype=torch.bool), "truncated": torch.zeros(1, 8, dtype=torch.bool)}
+        for _ in range(5):
+            agent.update(batch)
+        return agent.state_dict()["actor"]
+
+    before = run()
+    assert keep_freed_memory() in (True, False)  # False where the C library is not glibc
+    after = run()
+    assert all(torch.equal(before[k], after[k]) for k in before)
+    with pytest.raises(ConfigError, match="unknown allocator 'tcmalloc'; known: keep, glibc"):
+        use_allocator("tcmalloc")
