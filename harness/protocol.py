@@ -11,8 +11,8 @@ Protocol (docs/algorithms.md 1.2-1.3):
 - deployed evaluation at step 0 and every ``eval_every`` steps: ``eval_episodes`` episodes of
   H_E steps in a separate eval env, s0 ~ rho0 (and a random task goal), the deterministic forward
   policy; an episode is a success if any of its steps succeeds; eval data never reaches the
-  learner. Evaluation episodes are seeded from (member seed, step), so they do not depend on
-  when a run was checkpointed or resumed;
+  learner. Evaluation episodes are seeded from (member seed, step) (:func:`eval_seed`: never the same
+  seed twice in a run, for any ``eval_every``), so they do not depend on when a run was checkpointed or resumed;
 - the continuing metric is the cumulative reward of the train env (its own task goal).
 
 Checkpoints are taken at evaluation steps that are multiples of ``checkpoint_every`` and at the
@@ -145,7 +145,12 @@ class Interaction:
 
 
 def eval_seed(member_seed: int, step: int) -> int:
-    return (member_seed * 1_000_003 + step // 1000) % (2**31 - 1)
+    """The seed of the first evaluation episode at ``step`` of the member seeded ``member_seed`` (>= 0): different for
+    every (member seed, step) of a run, for any ``eval_every``. Steps at multiples of 1000 (every EARL schedule) keep
+    the formula that all shipped results used; other steps map above 2**31, into one block of 2**34 steps per seed."""
+    if step % 1000 == 0:
+        return (member_seed * 1_000_003 + step // 1000) % (2**31 - 1)
+    return 2**31 + member_seed * 2**34 + step
 
 
 def evaluate(algo: Algorithm, envs: list | LocalEnvs | WorkerEnvs, seeds: list[int], step: int,

@@ -13,7 +13,7 @@ import pytest
 
 from algorithms.api import AlgoConfig, Algorithm
 from harness.envs import get_spec, make_env
-from harness.protocol import RunSpec, evaluate, train
+from harness.protocol import RunSpec, eval_seed, evaluate, train
 from harness.results import load, load_train
 
 from .conftest import requires_data
@@ -195,6 +195,16 @@ RESUME_ARGS = ["algo=medal", "env=tabletop_manipulation", "seeds=1", "steps=1200
 def _comparable(df: pd.DataFrame) -> pd.DataFrame:
     df = df[~df.metric.isin(["steps_per_s", "wall_s"])]
     return df.sort_values(["seed", "step", "metric"]).reset_index(drop=True)[["seed", "step", "metric", "value"]]
+
+
+@pytest.mark.parametrize("eval_every", [1, 100, 250, 999, 1000, 10_000])
+def test_evaluation_seeds_never_repeat_for_any_schedule(eval_every):
+    """Every evaluation of a run (seeds 0-9, 3M steps) starts from its own env seed, including across member seeds, and
+    EARL's schedules (multiples of 1000) keep the seeds the shipped results were evaluated with."""
+    steps = range(0, 3_000_001 if eval_every >= 100 else 20_001, eval_every)
+    seeds = [eval_seed(s, t) for s in range(10) for t in steps]
+    assert len(set(seeds)) == len(seeds)
+    assert eval_seed(3, 250_000) == (3 * 1_000_003 + 250) % (2**31 - 1)
 
 
 def test_keep_every_keeps_earlier_checkpoints_and_restores_one_lost_to_a_kill(tmp_path):
