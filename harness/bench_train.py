@@ -19,9 +19,9 @@ from algorithms.core.sac import UPDATES, set_update_mode
 from harness.backends import use_allocator
 from harness.command_keys import BENCH
 from harness.envs import check_env, get_spec, load_env_demos
+from harness.planning import check_demos_needed, check_goal_shape, check_task_reward
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
-from harness.runner import check_demos_needed, check_goal_shape, check_task_reward
 from harness.suites import resolve_algo_config
 from harness.words import UsageError, optional_integer
 
@@ -73,8 +73,10 @@ def _measure(inter, agent, algo, env, members, steps, device, repeats, seed_step
     return {"steps_per_s": rate, "aggregate": rate * members, "split": share, "runs": rates}
 
 
-def bench_train_cli(ov: dict[str, str]) -> int:
-    allowed = set(BENCH["train"])
+def training_words(what: str, ov: dict[str, str]) -> tuple[str, str, str]:
+    """The (algo, env, update) of ``harness bench <what>``'s words, each checked (one line naming a bad one), and the
+    allocator set as the words say."""
+    allowed = set(BENCH[what])
     unknown = set(ov) - allowed
     if unknown:
         raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
@@ -86,6 +88,11 @@ def bench_train_cli(ov: dict[str, str]) -> int:
     if update not in UPDATES:
         raise UsageError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
     use_allocator(ov.get("allocator", "keep"))
+    return algo, env, update
+
+
+def bench_train_cli(ov: dict[str, str]) -> int:
+    algo, env, update = training_words("train", ov)
     if "threads" in ov:
         torch.set_num_threads(optional_integer("threads", ov["threads"], 1, 1))
     bench_train(algo, env, optional_integer("members", ov.get("members"), 1, 1), optional_integer("steps", ov.get("steps"), 1000, 1),

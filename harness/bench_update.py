@@ -28,13 +28,13 @@ import algorithms.core.sac as sac_mod
 from algorithms.api import DemoSet
 from algorithms.core.nets import member_matmul
 from algorithms.core.optim import MemberAdam
-from algorithms.core.sac import SAC, UPDATES
-from harness.backends import use_allocator
-from harness.command_keys import BENCH
-from harness.envs import check_env, get_spec, load_env_demos
+from algorithms.core.sac import SAC
+from harness.bench_train import training_words
+from harness.envs import get_spec, load_env_demos
 from harness.registry import ALGORITHMS
 from harness.suites import resolve_algo_config
 from harness.words import UsageError, optional_integer
+
 
 def cpu_name() -> str:
     """The CPU's model name and its widest vector extension (AVX-512 or AVX2), as /proc/cpuinfo says."""
@@ -189,18 +189,7 @@ def bench_update(algo: str, env: str, members: int = 1, update: str = "default",
 
 
 def bench_update_cli(ov: dict[str, str]) -> int:
-    allowed = set(BENCH["update"])
-    unknown = set(ov) - allowed
-    if unknown:
-        raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
-    algo, env = ov.get("algo", "medal"), ov.get("env", "sawyer_door")
-    if algo not in ALGORITHMS:
-        raise UsageError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
-    check_env(env)
-    update = ov.get("update", "default")
-    if update not in UPDATES:
-        raise UsageError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
-    use_allocator(ov.get("allocator", "keep"))
+    algo, env, update = training_words("update", ov)
     torch.set_num_threads(optional_integer("threads", ov.get("threads"), 1, 1))
     bench_update(algo, env, optional_integer("members", ov.get("members"), 1, 1), update,
                  optional_integer("repeats", ov.get("repeats"), 5, 1), optional_integer("n", ov.get("n"), 50, 1))

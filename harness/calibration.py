@@ -62,8 +62,7 @@ def measure(group: RunSpec, threads: int) -> float:
     """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O)."""
     from algorithms.api import DemoSet
     from algorithms.core.sac import set_update_mode
-    from harness.envs import load_env_demos
-    from harness.envs import get_spec
+    from harness.envs import get_spec, load_env_demos
     from harness.protocol import Interaction
     from harness.registry import ALGORITHMS
 

@@ -198,7 +198,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=Parser)
     sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
 
-    from harness.runner import RUN_KEYS
+    from harness.request import RUN_KEYS
     from harness.tune_setup import TUNE_KEY_HELP
 
     raw = argparse.RawDescriptionHelpFormatter

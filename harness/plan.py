@@ -1,6 +1,6 @@
 """What ``harness run`` will do, as data: run groups (:class:`RunSpec`) and the :class:`Plan` that holds them.
 
-:func:`harness.runner.build_plan` makes a plan from a :class:`harness.runner.RunRequest`; :mod:`harness.backends`
+:func:`harness.planning.build_plan` makes a plan from a :class:`harness.request.RunRequest`; :mod:`harness.backends`
 executes its groups; :func:`harness.protocol.train` runs one group.
 """
 
@@ -17,7 +17,7 @@ from harness.results import checkpoint_path, run_dir
 class RunSpec:
     """One run group: the seeds one process trains in lockstep, and everything that determines their results.
 
-    :func:`harness.runner.build_plan` makes them; the backends, tuning and the protocol read them."""
+    :func:`harness.planning.build_plan` makes them; the backends, tuning and the protocol read them."""
 
     suite: str
     env: str

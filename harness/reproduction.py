@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from algorithms.api import parse_int
 from harness import curve_checks as C
 from harness.curve_checks import CurveRule
-from algorithms.api import parse_int
 from harness.suites import ConfigError, load_suite
 
 METRIC = "deployed_success"

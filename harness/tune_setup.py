@@ -15,7 +15,7 @@ from harness.words import integer as parse_int
 from harness.words import parse_words
 
 if TYPE_CHECKING:
-    from harness.runner import RunRequest
+    from harness.request import RunRequest
 
 
 #: every key=value word of ``harness tune``: (default, meaning); ``harness tune --help`` prints this table
@@ -97,8 +97,9 @@ def trial_request(base: RunRequest, algo: str, params: dict[str, Any], results: 
 
 def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
+    from harness.planning import build_plan
     from harness.registry import ALGORITHMS
-    from harness.runner import MAX_EPISODES, MAX_STEPS, RunRequest, build_plan, check_device, parse_seeds
+    from harness.request import MAX_EPISODES, MAX_STEPS, RunRequest, check_device, parse_seeds
 
     ov, fixed_config = parse_words(words, TUNE_KEYS, scope=lambda s: True)
 

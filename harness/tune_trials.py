@@ -73,8 +73,9 @@ def trial_progress(dirs: list[Path]) -> tuple[int, float]:
 
 def objective(setup: dict[str, Any], threads: int | None):
     optuna = load_optuna()
+    from harness.planning import build_plan
     from harness.results import write_status
-    from harness.runner import build_plan, run_group
+    from harness.runner import run_group
 
     retry_cls = retry_callback_class()
 

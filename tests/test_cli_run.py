@@ -89,7 +89,8 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     the user made before), then one this test writes itself."""
     from harness import calibration
     from harness.data import state_dir
-    from harness.runner import _fmt_time, plan_words
+    from harness.planning import plan_words
+    from harness.runner import _fmt_time
 
     words = ["run", "suite=earl_sparse", f"results={tmp_path}"]
     assert main([*words, "--dry-run", "calibrate=false"]) == 0
@@ -167,8 +168,8 @@ def test_dry_run_counts_only_steps_left_to_run(tmp_path, capsys):
 def test_plan_runs_work_in_flight_first(tmp_path, capsys):
     """Groups that resume from a checkpoint run first, then the other groups of begun cells, then the rest, each
     in suite order; the dry run lists them in that order with what each has done."""
+    from harness.planning import plan_words
     from harness.results import checkpoint_path, run_dir, write_status
-    from harness.runner import plan_words
 
     args = ["run", "algo=naive,oracle,fbrl", "env=sawyer_door", "seeds=2", "steps=1000", "eval_every=100",
             "checkpoint_every=200", "members=1", "workers=1", f"results={tmp_path}"]
@@ -189,7 +190,7 @@ def test_plan_runs_work_in_flight_first(tmp_path, capsys):
 
 
 def test_git_sha_marks_uncommitted_changes(tmp_path):
-    from harness.runner import git_sha
+    from harness.provenance import git_sha
 
     assert git_sha(tmp_path) == "unknown"  # not a checkout
     git = ["git", "-C", str(tmp_path), "-c", "user.name=t", "-c", "user.email=t@t"]
@@ -206,7 +207,7 @@ def test_git_sha_marks_uncommitted_changes(tmp_path):
 
 def test_seed_lists():
     """A count, a comma list, and one explicit seed (``7,`` or ``[7]``: ``seeds=7`` is the count 0..6)."""
-    from harness.runner import parse_seeds
+    from harness.request import parse_seeds
 
     assert parse_seeds("3") == [0, 1, 2] and parse_seeds(3) == [0, 1, 2]
     assert parse_seeds("0,3,7") == parse_seeds("[0,3,7]") == parse_seeds([0, 3, 7]) == [0, 3, 7]
@@ -274,7 +275,8 @@ def test_logger_tensorboard_writes_the_same_rows_once_across_a_resume(tmp_path):
     """Stopped after the evaluation at 300 with its checkpoint at 200, the run resumes at 200 and redoes 300: the
     events of the first 300 are purged, so TensorBoard holds each step once with the values the tables hold."""
     pytest.importorskip("tensorboard")
-    from harness.runner import plan_words, run_group
+    from harness.planning import plan_words
+    from harness.runner import run_group
 
     words = ["algo=medal", "env=tabletop_manipulation", "steps=400", "eval_every=100", "checkpoint_every=200",
              "log_every=50", "eval_episodes=1", "medal.seed_steps=50", "medal.batch_size=16", "logger=tensorboard",
@@ -321,7 +323,7 @@ def test_every_command_lists_its_keys_in_its_help(capsys):
 def test_defaults_follow_the_users_eval_every(tmp_path):
     """A key the user never set cannot reject one they did (issue 58): log_every defaults to the largest divisor of
     eval_every up to 1000, checkpoint_every to the first multiple of eval_every from 50k on; the usual values stay."""
-    from harness.runner import plan_words
+    from harness.planning import plan_words
 
     def spec(*words):
         return plan_words(["algo=naive", "env=tabletop_manipulation", f"results={tmp_path}", *words]).groups[0]

@@ -8,8 +8,7 @@ from torch.distributions import Normal, TransformedDistribution
 from torch.distributions.transforms import TanhTransform
 
 from algorithms.core import SAC, SACConfig, squashed_gaussian_log_prob
-from algorithms.core.nets import Stream, member_generators, member_randn
-from algorithms.core.optim import polyak_update
+from algorithms.core.nets import Stream, member_generators
 
 OBS, ACT = 5, 2
 SMALL = SACConfig(hidden_dim=16, feature_dim=8)

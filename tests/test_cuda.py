@@ -17,8 +17,9 @@ import torch
 from algorithms.core import SAC, SACConfig
 from algorithms.core import sac as sac_module
 from algorithms.core.nets import member_generators, member_randn
+from harness.planning import plan_words
 from harness.protocol import CheckpointError, load_checkpoint
-from harness.runner import plan_words, run_group
+from harness.runner import run_group
 
 from .conftest import requires_data
 

@@ -83,7 +83,8 @@ def test_evaluation_in_worker_envs_equals_local():
 
 
 def test_a_run_with_env_workers_writes_the_same_results(tmp_path):
-    from harness.runner import plan_words, run_group
+    from harness.planning import plan_words
+    from harness.runner import run_group
 
     base = ["algo=medal", "env=tabletop_manipulation", "seeds=2", "members=2", "steps=200", "eval_every=100",
             "checkpoint_every=100", "eval_episodes=2", "medal.seed_steps=50", "medal.batch_size=16"]

@@ -542,7 +542,7 @@ def test_vaprl_replay_candidates_are_states_from_each_members_buffer_drawn_once_
 
 
 def test_vaprl_config_rejects_unknown_choices():
-    from harness.runner import plan_words
+    from harness.planning import plan_words
     from harness.suites import ConfigError
 
     with pytest.raises(ConfigError, match="relabel=.banana. is not allowed: must be one of final, final_failed, future_demo, none"):

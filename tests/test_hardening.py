@@ -295,7 +295,7 @@ def test_a_run_resumes_in_the_update_mode_it_ran_with_unless_told_otherwise(tmp_
     """Without ``update=``, a run goes on in the mode it last ran with (the same command resumes it bitwise); an
     explicit other mode goes on within rounding, not bitwise, and one note names both modes. A finished run does
     not train again, so it gets no note."""
-    from harness.runner import plan_words
+    from harness.planning import plan_words
 
     words = ["run", "algo=naive", "env=tabletop_manipulation", "steps=200", "eval_every=200", *TINY,
              f"results={tmp_path}", "workers=1", "update=static"]
@@ -342,7 +342,7 @@ def test_explicit_data_dir_is_honoured(tmp_path, capsys, kind):
 
 # -- help -------------------------------------------------------------------------------------------------------------
 def test_help_lists_every_key_with_default(capsys):
-    from harness.runner import RUN_KEYS
+    from harness.request import RUN_KEYS
     from harness.tune_setup import TUNE_KEY_HELP
 
     for cmd, keys in (("run", RUN_KEYS), ("tune", TUNE_KEY_HELP)):

@@ -7,7 +7,8 @@ import pytest
 
 from harness.backends import ray_options
 from harness.packing import GPU_MAX_MEMBERS, GiB, Machine, Work, member_bytes, pack, split
-from harness.runner import RunRequest, build_plan
+from harness.planning import build_plan
+from harness.request import RunRequest
 
 from .conftest import requires_data
 
@@ -85,7 +86,7 @@ def test_cpu_plans_are_unchanged(words, members, workers, monkeypatch):
 def test_cpu_training_processes_get_one_torch_thread(tmp_path):
     """Issue 58: one group on a shared 2-core machine must not stall on a second intra-op thread."""
     from harness.backends import process_threads
-    from harness.runner import plan_words
+    from harness.planning import plan_words
 
     for workers in ("1", "2"):
         plan = plan_words(["algo=naive", "env=tabletop_manipulation", "seeds=2", "members=1", f"workers={workers}",

@@ -12,8 +12,8 @@ import pytest
 
 from harness import ladder_provenance as P
 from harness import reproduction as R
+from harness.planning import plan_words
 from harness.results import run_dir
-from harness.runner import plan_words
 from harness.suites import ConfigError
 from harness.synthetic import write_run
 

@@ -13,7 +13,8 @@ import yaml
 from algorithms.core import SAC, SACConfig
 from algorithms.core.optim import FlatMembers, MemberAdam, polyak_update, polyak_update_masked
 from algorithms.core.sac import use_static_updates
-from harness.runner import plan_words, run_group
+from harness.planning import plan_words
+from harness.runner import run_group
 
 from .conftest import requires_data
 

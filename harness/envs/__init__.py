@@ -2,7 +2,7 @@
 effects but the gymnasium registration.
 
 Each env declares its :class:`EnvInfo` in its own module and is registered here with one line; every per-env
-table of the harness is derived from ``ENVS`` (``GYM_IDS``, ``EVAL_HORIZONS`` below, ``harness.runner.DEFAULT_STEPS``,
+table of the harness is derived from ``ENVS`` (``GYM_IDS``, ``EVAL_HORIZONS`` below, ``harness.request.DEFAULT_STEPS``,
 ``harness.labels.ENV_ORDER`` / ``ENV_LABELS``, ...). See docs/extending.md.
 
 ``register_gym()`` registers the gymnasium ids (``earl/TabletopManipulation-v0``,

@@ -58,8 +58,8 @@ import numpy as np
 
 from harness.data import asset_path
 from harness.envs.base import EarlEnv, unpickle_env
-from harness.envs.mujoco_render import MujocoRendering
 from harness.envs.kitchen_task import COMPONENTS, INITIAL_STATES, KITCHEN_SPEC
+from harness.envs.mujoco_render import MujocoRendering
 
 SCENE = ("adept_envs", "adept_envs", "franka", "assets", "franka_kitchen_jntpos_act_ab.xml")
 _KETTLE_ASSET = "kettle_asset.xml"

@@ -1,0 +1,128 @@
+"""Tabs Aggregates (IQM, probability of improvement), Ablations and Diagnostics (training diagnostics)."""
+
+from __future__ import annotations
+
+import streamlit as st
+
+from harness import analysis as A
+from harness.dashboard.charts import curves_grid
+from harness.dashboard.data import Sel, aggregates_for, curves_for, filtered, load_diagnostics, scores_for
+from harness.dashboard.results_tabs import step_option
+from harness.labels import ABLATIONS, algo_label, env_label, order_algos
+from harness.stats import common_envs, probability_of_improvement, scores_by_task
+
+
+def tab_aggregates(root, sig, sel: Sel) -> None:
+    import altair as alt  # imported on first chart: keeps the first page load light
+    step, last_k = step_option("score", "agg")
+    scores = scores_for(root, sig, sel, step, last_k)
+    if scores.empty:
+        st.info("No deployed_success results for this selection.")
+        return
+    have = order_algos(scores["algo"].unique())
+    chosen = st.multiselect("methods", have, default=have, format_func=algo_label, key="agg_algos")
+    shared = common_envs(scores, chosen) if chosen else []
+    if not chosen or not shared:
+        st.info("Choose methods that share at least one env.")
+        return
+    left_out = sorted(set(scores["env"]) - set(shared))
+    agg = aggregates_for(root, sig, sel._replace(envs=tuple(shared), algos=tuple(chosen)), step, last_k, 2000)
+    st.markdown(f"**IQM and mean of deployed success across {len(shared)} env(s)** "
+                f"({', '.join(env_label(e) for e in shared)}); 95% stratified-bootstrap CIs, 2000 resamples.")
+    if left_out:
+        st.caption(f"Envs not shared by all chosen methods are left out: {', '.join(left_out)}.")
+    view = agg.assign(method=agg["algo"].map(algo_label))
+    chart = alt.Chart(view).mark_rule(strokeWidth=3).encode(
+        y=alt.Y("method:N", sort=list(view["method"]), title=None), x=alt.X("iqm_lo:Q", title="IQM (deployed success)",
+                                                                             scale=alt.Scale(domain=[0, 1])),
+        x2="iqm_hi:Q", color=alt.Color("method:N", legend=None)) + alt.Chart(view).mark_point(
+        filled=True, size=80, color="black").encode(y=alt.Y("method:N", sort=list(view["method"])), x="iqm:Q",
+                                                    tooltip=["method", alt.Tooltip("iqm:Q", format=".3f"),
+                                                             alt.Tooltip("iqm_lo:Q", format=".3f"),
+                                                             alt.Tooltip("iqm_hi:Q", format=".3f")])
+    st.altair_chart(chart, width="stretch", height=40 * len(view) + 80)
+    st.dataframe(view[["method", "iqm", "iqm_lo", "iqm_hi", "mean", "mean_lo", "mean_hi", "n_envs", "n_runs"]],
+                 hide_index=True)
+
+    st.subheader("Probability of improvement")
+    if len(have) < 2:
+        st.info("Needs results of two methods.")
+        return
+    c1, c2 = st.columns(2)
+    x = c1.selectbox("X", have, index=have.index("medal") if "medal" in have else 0, format_func=algo_label,
+                     key="poi_x")
+    y = c2.selectbox("Y", [a for a in have if a != x], format_func=algo_label, key="poi_y")
+    envs_xy = common_envs(scores, [x, y])
+    if not envs_xy:
+        st.info("These two methods share no env.")
+        return
+    p, lo, hi = probability_of_improvement(scores_by_task(scores, x, envs_xy), scores_by_task(scores, y, envs_xy))
+    st.metric(f"P({algo_label(x)} > {algo_label(y)})", f"{p:.2f}", help="average over envs of "
+              "P(X_run > Y_run) + ½ P(=); 95% stratified-bootstrap CI")
+    st.caption(f"95% CI [{lo:.2f}, {hi:.2f}] over {len(envs_xy)} env(s): {', '.join(env_label(e) for e in envs_xy)}.")
+
+
+def tab_ablations(root, sig, sel: Sel) -> None:
+    df = filtered(root, sig, sel)
+    have = set(df["algo"].unique()) if len(df) else set()
+    shown = 0
+    for title, group in ABLATIONS.items():
+        present = [a for a in group if a in have]
+        if len(present) < 2:
+            continue
+        shown += 1
+        st.subheader(title)
+        sub = tuple(sorted(present))
+        c = curves_for(root, sig, sel._replace(algos=sub), "deployed_success", 1, "auto", False)
+        curves_grid(c, None, "deployed_success", "se", ncols=3)
+        fp = A.final_performance(A.select(df, algo=list(present)))
+        fp["final (mean (SE))"] = [f"{m:.2f} ({s:.2f})" for m, s in zip(fp["mean"], fp["se"])]
+        wide = fp.pivot(index="algo", columns="env", values="final (mean (SE))")
+        wide.index = [algo_label(a) for a in wide.index]
+        wide.columns = [env_label(e) for e in wide.columns]
+        st.dataframe(wide)
+    if not shown:
+        lines = "\n".join(f"- {t}: {', '.join(g)}" for t, g in ABLATIONS.items())
+        st.info("No ablation has results for two or more of its methods yet. The groups:\n" + lines +
+                "\n\nRun e.g. `harness run algos=medal,medal_logc,fbrl_vice,bc,gail_naive,gail_oracle envs=... seeds=5`.")
+
+
+def tab_diagnostics(root: str, sig: tuple, sel: Sel) -> None:
+    df = load_diagnostics(root, sig)
+    if df.empty:
+        st.info("No training diagnostics (`train.parquet`) under this directory: runs write them every `log_every` "
+                "steps (default 1,000) since the harness logs them.")
+        return
+    df = A.select(df, suite=sel.suite, env=list(sel.envs), algo=list(sel.algos)) if len(sel.envs) else df
+    if df.empty:
+        st.info("No training diagnostics for this selection.")
+        return
+    runs = df[["suite", "env", "algo", "seed"]].drop_duplicates().sort_values(["suite", "env", "algo", "seed"])
+    labels = [f"{r.suite} / {r.env} / {r.algo} / seed {r.seed}" for r in runs.itertuples()]
+    c1, c2, c3 = st.columns([3, 2, 1])
+    picked = c1.multiselect("runs", labels, default=labels[: min(4, len(labels))], key="diag_runs")
+    metrics = sorted(df["metric"].unique())
+    default = "forward/critic_loss" if "forward/critic_loss" in metrics else "sac/critic_loss" \
+        if "sac/critic_loss" in metrics else metrics[0]
+    metric = c2.selectbox("metric", metrics, index=metrics.index(default), key="diag_metric",
+                          help="forward/*, backward/*, sac/*: SAC update diagnostics of that agent while it acted; "
+                               "discriminator/*, rnd/*, success_critic/*, value_critic/*: the method's own model; "
+                               "phase/*, episode/*, curriculum/*, switch/*: controller state")
+    window = c3.slider("smoothing", 1, 50, 1, key="diag_smooth")
+    keep = runs.iloc[[labels.index(p) for p in picked]] if picked else runs.iloc[:0]
+    d = df[df["metric"] == metric].merge(keep, on=["suite", "env", "algo", "seed"])
+    if d.empty:
+        st.info(f"`{metric}` was not logged by the selected runs.")
+        return
+    d = d.sort_values("step").assign(run=lambda x: x["env"] + "/" + x["algo"] + " seed " + x["seed"].astype(str))
+    d["value"] = d.groupby("run")["value"].transform(lambda v: v.rolling(window, min_periods=1).mean())
+    import altair as alt
+
+    chart = alt.Chart(d[["run", "step", "value"]]).mark_line(strokeWidth=1.5).encode(
+        x=alt.X("step:Q", title="environment steps", axis=alt.Axis(format="~s")),
+        y=alt.Y("value:Q", title=metric, scale=alt.Scale(zero=False)),
+        color=alt.Color("run:N", legend=alt.Legend(title=None, orient="bottom", labelLimit=400)),
+        tooltip=["run", "step", alt.Tooltip("value:Q", format=".4g")])
+    st.altair_chart(chart, width="stretch", height=420)
+    st.caption(f"Means over each logging period (every `log_every` steps) of what the updates returned; "
+               f"smoothing: trailing mean over {window} period(s).")

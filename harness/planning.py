@@ -1,0 +1,387 @@
+"""From a :class:`~harness.request.RunRequest` to a :class:`~harness.plan.Plan`: suite expansion (products of
+algorithms and envs, or cells), the checks that an algorithm fits an env, the packing, config hashes, and the checks of
+existing results directories (a different config is refused, a resumed run keeps its update mode). Nothing is
+written; everything is checked before :mod:`harness.runner` starts a group."""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from algorithms.core.sac import UPDATES
+from harness.envs import UnknownEnvError, check_env, env_info, load_env_demos
+from harness.packing import Machine, Work, pack
+from harness.plan import Plan, RunSpec
+from harness.provenance import git_sha
+from harness.request import (
+    BACKENDS,
+    DEFAULT_STEPS,
+    LOGGERS,
+    MAX_EPISODES,
+    MAX_MEMBERS,
+    MAX_STEPS,
+    RunRequest,
+    parse_seeds,
+)
+from harness.suites import (
+    ConfigError,
+    as_plain,
+    check_all_keys,
+    check_name,
+    config_hash,
+    load_suite,
+    resolve_algo_config,
+)
+from harness.words import integer as _int
+from harness.words import names
+
+
+@dataclass(frozen=True)
+class Unit:
+    """What one (env, method) of a suite asks for; ``name`` is the method's name in results (a cell's variant name,
+    else the algorithm), ``algo_class`` its registry key, ``config`` a cell's own config overrides."""
+
+    env: str
+    name: str
+    algo_class: str
+    steps: int
+    seeds: list[int]
+    members: int | None  # the suite's or cell's own value (None: harness.packing chooses)
+    config: dict[str, Any]
+    cpu_members: int = 1  # a CPU run's members when nothing is given (cells: the cell's seeds)
+
+
+
+def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
+    from harness.registry import ALGORITHMS
+
+    for e in envs:
+        try:
+            check_env(e)  # unknown, never released, or its optional simulator not installed: one line
+        except UnknownEnvError as err:
+            raise ConfigError(str(err)) from None
+    unknown = [a for a in algos if a not in ALGORITHMS]
+    if unknown:
+        raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
+
+
+def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
+    """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env."""
+    algos = list(req.algos) or names("algo", suite.get("algos") or [])
+    envs = list(req.envs) or names("env", suite.get("envs") or [])
+    _check_envs_algos(envs, algos)
+    seeds = list(req.seeds) if req.seeds is not None else parse_seeds(suite.get("seeds", 1))
+    members = _int("members", suite["members"], 1, MAX_MEMBERS) if "members" in suite else None
+    steps_cfg = req.steps if req.steps is not None else suite.get("steps", DEFAULT_STEPS)
+    units = []
+    for env in envs:
+        if isinstance(steps_cfg, dict):
+            if env not in steps_cfg:
+                raise ConfigError(f"suite gives no step budget for env {env!r}")
+            steps = _int(f"steps[{env}]", steps_cfg[env], 1, MAX_STEPS)
+        else:
+            steps = _int("steps", steps_cfg, 1, MAX_STEPS)
+        units += [Unit(env, a, a, steps, seeds, members, {}) for a in algos]
+    return units
+
+
+CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "checks"}
+
+
+def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
+    """A suite of ``cells`` (each its own algorithm, env, budget and seeds); ``algo=``/``env=`` select cells: an
+    ``algo=`` word that is a cell's name selects the cells of that name, any other word every cell of that algorithm
+    (``algo=vaprl_risc`` in the VaPRL ablation is its one base cell, ``algo=vaprl`` every variant built on ``vaprl``);
+    ``seeds=``/``steps=`` replace every cell's."""
+    cells = suite["cells"]
+    if not isinstance(cells, list) or not cells:
+        raise ConfigError("suite key 'cells' must be a non-empty list of {algo, env, steps, ...} mappings")
+    names = {str(c.get("name") or c.get("algo")) for c in cells if isinstance(c, dict)}
+    pick_names = set(req.algos) & names
+    pick_algos, pick_envs = set(req.algos) - pick_names, set(req.envs)
+    units, seen = [], set()
+    for n, c in enumerate(cells):
+        where = f"cell {n + 1} of suite 'cells'"
+        if not isinstance(c, dict) or not {"algo", "env", "steps"} <= set(c):
+            raise ConfigError(f"{where} must be a mapping with at least algo, env and steps")
+        if set(c) - CELL_KEYS:
+            raise ConfigError(f"unknown key(s) {sorted(set(c) - CELL_KEYS)} in {where}; known: {sorted(CELL_KEYS)}")
+        algo, env, name = str(c["algo"]), str(c["env"]), str(c.get("name") or c["algo"])
+        _check_envs_algos([env], [algo])
+        check_name(f"{where}:", name)
+        if (env, name) in seen:
+            raise ConfigError(f"{where}: two cells run {name!r} on {env!r}; give one a distinct name")
+        seen.add((env, name))
+        config = c.get("config") or {}
+        if not isinstance(config, dict):
+            raise ConfigError(f"{where}: config must map keys of {algo!r} to values")
+        if (pick_names or pick_algos) and not (name in pick_names or algo in pick_algos) or (
+                pick_envs and env not in pick_envs):
+            continue
+        seeds = list(req.seeds) if req.seeds is not None else parse_seeds(c.get("seeds", suite.get("seeds", 1)))
+        steps = req.steps if req.steps is not None else _int(f"steps of {where}", c["steps"], 1, MAX_STEPS)
+        given = c.get("members", suite.get("members"))
+        members = None if given is None else _int(f"members of {where}", given, 1, MAX_MEMBERS)
+        units.append(Unit(env, name, algo, steps, seeds, members, dict(config), cpu_members=len(seeds)))
+    if not units:
+        raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(req.algos)) or '*'} "
+                          f"env={','.join(sorted(pick_envs)) or '*'}")
+    return units
+
+
+def check_demos_needed(name: str, cls, cfg, env: str) -> None:
+    """:class:`ConfigError` (one line) when algorithm ``cls`` with ``cfg`` needs demonstrations (``requires_demos``)
+    and ``env`` declares it has none (``EnvInfo.demos``)."""
+    from harness.registry import ALGORITHMS
+
+    if env_info(env).demos or not cls.requires_demos(cfg):
+        return
+    able = [a for a, c in ALGORITHMS.items() if not c.requires_demos(c.Config())]
+    raise ConfigError(f"algo={name} needs demonstrations and env={env} has none (EARL ships none for it); "
+                      f"algorithms that run without demonstrations: {', '.join(able)}")
+
+
+def check_task_reward(name: str, cls, env: str) -> None:
+    """:class:`ConfigError` (one line) when ``env`` declares a dense reward (``EnvSpec.reward_fn``: EARL trained on it)
+    and algorithm ``cls`` learns from 1[success] instead (``task_reward`` False)."""
+    from harness.registry import ALGORITHMS
+
+    info = env_info(env)
+    if info.spec.reward_fn is None or cls.task_reward:
+        return
+    able = [a for a, c in ALGORITHMS.items() if c.task_reward and (info.demos or not c.requires_demos(c.Config()))]
+    raise ConfigError(f"algo={name} learns from 1[success] and env={env}'s reward is dense (EARL trained on it); "
+                      f"algorithms that learn from it: {', '.join(able)}")
+
+
+def check_goal_shape(name: str, cls, env: str) -> None:
+    """:class:`ConfigError` (one line) when algorithm ``cls`` writes states into the goal (``state_goals``) and
+    ``env``'s goal is only some of its state coordinates (``EnvSpec.goal_idx``: minitaur's base xy)."""
+    from harness.registry import ALGORITHMS
+
+    info = env_info(env)
+    spec = info.spec
+    if spec.goal_dim == spec.state_dim or not cls.state_goals:
+        return
+    able = [a for a, c in ALGORITHMS.items() if not c.state_goals and (info.demos or not c.requires_demos(c.Config()))]
+    raise ConfigError(f"algo={name} sets states as goals and env={env}'s goal is {spec.goal_dim} of its "
+                      f"{spec.state_dim} state coordinates; algorithms that run on it: {', '.join(able)}")
+
+
+def build_plan(req: RunRequest) -> Plan:
+    """Resolve a request into run groups, checking everything (suite, algorithms, envs, configs, data, results
+    directories); nothing is written. :func:`plan_words` does it for the words of a command."""
+    from harness.registry import ALGORITHMS
+
+    if req.backend not in BACKENDS:
+        raise ConfigError(f"unknown backend {req.backend!r}; known backends: {', '.join(BACKENDS)}")
+    if req.logger not in LOGGERS:
+        raise ConfigError(f"unknown logger {req.logger!r}; known: {', '.join(LOGGERS)}")
+    if req.suite is not None:
+        suite_name, suite = load_suite(req.suite)
+    else:
+        if not req.algos or not req.envs:
+            raise ConfigError("give suite=NAME, or algo=... and env=... for an ad-hoc run")
+        suite_name, suite = "adhoc", {}
+    if req.study is not None:
+        suite_name = f"tune_{req.study}"
+
+    def value(key: str, default: int, hi: int) -> int:
+        given = getattr(req, key)
+        return _int(key, given if given is not None else suite.get(key, default), 1, hi)
+
+    eval_every, eval_episodes = value("eval_every", 10_000, MAX_STEPS), value("eval_episodes", 10, MAX_EPISODES)
+    # defaults follow the user's eval_every, so that no key the user never set can reject what they did set: a
+    # checkpoint at the first evaluation from 50k on, a diagnostics row at the largest divisor of eval_every <= 1000
+    ckpt = value("checkpoint_every", -(-50_000 // eval_every) * eval_every, MAX_STEPS)
+    if ckpt % eval_every:
+        raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
+    keep = _int("keep_every", req.keep_every if req.keep_every is not None else suite.get("keep_every", 0), 0,
+                MAX_STEPS)
+    if keep % ckpt:
+        raise ConfigError(f"keep_every ({keep}) must be a multiple of checkpoint_every ({ckpt})")
+    divisor = next(d for d in range(min(1000, eval_every), 0, -1) if eval_every % d == 0)
+    # a row every eval_every steps where eval_every has no divisor from 100 to 1000 (a prime above 1000, say)
+    log_every = value("log_every", divisor if divisor >= min(100, eval_every) else eval_every, MAX_STEPS)
+    if eval_every % log_every:
+        raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
+    suite_cfg = suite.get("config") or {}
+    if not isinstance(suite_cfg, dict):
+        raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
+
+    units = (_cell_units if "cells" in suite else _product_units)(suite, req)
+    selected = {u.algo_class for u in units}
+    stray = sorted(set(req.config) - selected - {"all"})
+    if stray:
+        raise ConfigError(f"override(s) for {', '.join(stray)} match no selected algorithm "
+                          f"(selected: {', '.join(sorted(selected)) or 'none'})")
+    check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, req.config)
+    protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
+    sha = git_sha()
+    machine = Machine.detect()
+    packing = pack([Work(len(u.seeds), u.steps, env_info(u.env).spec.obs_dim, env_info(u.env).spec.act_dim, u.members,
+                         u.cpu_members) for u in units], req.device, machine, req.members, req.workers, req.env_workers)
+    groups: list[RunSpec] = []
+    for u, members in zip(units, packing.members):
+        cls = ALGORITHMS[u.algo_class]
+        cell_layer = {u.algo_class: u.config} if u.config else {}
+        cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
+        check_goal_shape(u.name, cls, u.env)  # first: its list of what runs also leaves out what needs demos
+        check_demos_needed(u.name, cls, cfg, u.env)
+        check_task_reward(u.name, cls, u.env)
+        try:
+            cls.check_task(cfg, env_info(u.env).spec)
+        except ValueError as e:
+            raise ConfigError(f"{u.name} on {u.env}: {e}") from None
+        fwd = load_env_demos(u.env, "forward")  # fails early, with one line, if the data is missing
+        cfg_plain = as_plain(cfg)
+        ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
+        if u.name != u.algo_class:
+            ident["algo_class"] = u.algo_class
+        h = config_hash(ident)
+        groups += [RunSpec(suite=suite_name, env=u.env, algo=u.name, algo_class=u.algo_class,
+                           seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
+                           eval_episodes=eval_episodes, checkpoint_every=ckpt, keep_every=keep, log_every=log_every,
+                           device=packing.device_of(len(groups) + n), results=req.results, config=cfg_plain,
+                           config_hash=h, demo_source=fwd.source, git_sha=sha, study=req.study, trial=req.trial,
+                           tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
+                           update=req.update or "default")
+                   for n, i in enumerate(range(0, len(u.seeds), members))]
+    if req.update is None:
+        groups = [replace(g, update=resumed_update(g)) for g in groups]
+    plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend,
+                ray_address=req.ray_address, calibrate=req.calibrate, machine=machine.describe(),
+                packing=packing.reasons, per_device=packing.per_device)
+    check_results_dirs(plan)
+    return plan
+
+
+def plan_words(words: list[str]) -> Plan:
+    """The plan of a ``harness run`` command's words."""
+    return build_plan(RunRequest.from_words(words))
+
+
+def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
+    """True when ``new`` keeps every key of ``old`` with the same value and only adds keys.
+
+    Project rule (README, Results): a config key added to an algorithm defaults to the behaviour the code had
+    before it existed, so a run started before the key was added resumes under the new code unchanged."""
+    return all(k in new and new[k] == v for k, v in old.items())
+
+
+def resumed_update(g: RunSpec) -> str:
+    """The update mode a group runs with when ``update=`` is not given: for a group that resumes from its checkpoint,
+    the one mode its runs last ran with, else ``default``. So the command that started a run resumes it bit for bit,
+    whatever mode it chose, and a run that starts from 0 starts in ``default``."""
+    from harness.results import RUN_FILE
+
+    if not g.checkpoint_path().exists():
+        return "default"
+    modes = {read_run_record(d / RUN_FILE).get("update", "default") for d in g.member_dirs() if (d / RUN_FILE).exists()}
+    return modes.pop() if len(modes) == 1 and modes <= set(UPDATES) else "default"
+
+
+def finished(d: Path, steps: int, status: dict[str, Any] | None = None) -> bool:
+    """Whether the run in ``d`` (its ``status``, read if not given) finished ``steps`` or more: running it again
+    trains nothing."""
+    from harness.results import read_status
+
+    st = (status if status is not None else read_status(d)) or {}
+    return st.get("state") == "done" and int(st.get("step", 0)) >= steps
+
+
+def check_results_dirs(plan: Plan) -> None:
+    """Refuse to mix runs of a different config into an existing results directory (a config that only gained
+    keys, at the defaults that keep the old behaviour, is the same config: see :func:`only_gained_keys`)."""
+    from harness.results import RUN_FILE
+
+    for g in plan.groups:
+        for d in g.member_dirs():
+            p = d / RUN_FILE
+            _check_writable(d)
+            if p.exists():
+                old = read_run_record(p)
+                done = finished(d, g.steps)  # a finished run does not train again: nothing to note
+                if old.get("update", "default") != g.update and not done and g.checkpoint_path().exists():
+                    print(f"harness: note: {p.parent}: this run last ran with update={old.get('update', 'default')}, "
+                          f"now update={g.update}: the curve goes on equal within float rounding, not bit for bit "
+                          "(give the same update= to resume exactly)", file=sys.stderr)
+                if old.get("config_hash") == g.config_hash:
+                    continue
+                same_protocol = all(old.get(k) == getattr(g, k) for k in ("eval_every", "eval_episodes", "demo_source"))
+                if same_protocol and isinstance(old.get("config"), dict) and only_gained_keys(old["config"], g.config):
+                    if not done:
+                        print(f"harness: note: {p.parent}: the config gained key(s) "
+                              f"{', '.join(sorted(set(g.config) - set(old['config'])))} since this run started; "
+                              "resuming it under the new code", file=sys.stderr)
+                    continue
+                raise ConfigError(
+                    f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
+                    f"{g.config_hash}); choose another results= directory or suite name"
+                )
+
+
+def _check_writable(d: Path) -> None:
+    """The nearest existing directory of ``d`` must be writable (and ``d`` itself, if it exists)."""
+    probe = d
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise ConfigError(f"results directory {probe} is not writable (needed for {d}); choose another results=")
+
+
+def read_run_record(p: Path) -> dict[str, Any]:
+    """A run's ``run.yaml`` as a mapping, or a one-line error naming the file and the fix."""
+    from harness.suites import read_yaml_text
+
+    fix = "delete it (it is rewritten when the run starts; the run resumes from its checkpoint)"
+    try:
+        text = p.read_text()
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read {p} ({getattr(e, 'strerror', None) or 'not UTF-8 text'}): {fix}") from None
+    try:
+        rec = read_yaml_text(text, str(p))
+    except ConfigError as e:
+        raise ConfigError(f"{e}: {fix}") from None
+    if not isinstance(rec, dict) or not rec:
+        what = "empty" if rec is None or rec == {} else f"a YAML {type(rec).__name__}, not a run record"
+        raise ConfigError(f"{p} is {what}: {fix}")
+    return rec
+
+
+def steps_done(spec: RunSpec) -> int:
+    """Env steps of the group (summed over its seeds) that a run would not redo: finished runs count in full,
+    unfinished ones up to their last checkpoint (the latest multiple of ``checkpoint_every`` they reported), and
+    runs that finished a smaller budget (``steps=`` raised since) up to the step they finished at (their final
+    checkpoint), from where they go on."""
+    from harness.results import read_status
+
+    has_checkpoint = spec.checkpoint_path().exists()
+    done = 0
+    for d in spec.member_dirs():
+        st = read_status(d) or {}
+        step, ended = int(st.get("step", 0)), st.get("state") == "done"
+        if finished(d, spec.steps, st):
+            done += spec.steps
+        elif has_checkpoint:  # a finished run's final checkpoint is at its last step, an unfinished one's on the grid
+            resume_at = step if ended else step // spec.checkpoint_every * spec.checkpoint_every
+            done += min(resume_at, spec.steps)
+    return done
+
+
+def run_order(groups: list[RunSpec]) -> list[RunSpec]:
+    """The order the groups run in: first those that resume from a checkpoint (work in flight finishes before new
+    work starts, so a machine that loses its checkpoints loses less), then the other groups of cells (env, method)
+    that have begun (so begun cells reach their verdict), then the rest; suite order within each."""
+    done = {id(g): steps_done(g) for g in groups}
+    begun = {(g.env, g.algo) for g in groups if done[id(g)] > 0}
+
+    def rank(g: RunSpec) -> int:
+        if 0 < done[id(g)] < g.steps * len(g.seeds):
+            return 0
+        return 1 if (g.env, g.algo) in begun else 2
+
+    return sorted(groups, key=rank)

@@ -1,0 +1,178 @@
+"""The words of ``harness run``, parsed once: the key table (:data:`RUN_KEYS`, printed by ``harness run --help``), the
+limits of what a run can hold, and :class:`RunRequest`, what one command asks for.
+
+Overrides (``key=value``): ``suite``, ``algo``/``algos``, ``env``/``envs``, ``seeds`` (a count or a
+comma list), ``steps``, ``eval_every``, ``eval_episodes``, ``checkpoint_every``, ``members`` (E, seeds
+trained in lockstep by one process), ``workers`` (parallel processes, default: cores), ``device``,
+``results`` (directory), ``backend`` (``local``: a process pool, the default; ``ray``: one Ray task per
+group, see ``harness/backends.py``), ``ray_address`` (``auto`` or ``HOST:PORT``; default: start a local
+Ray instance), and algorithm config as ``<algo>.<key>=value`` or ``all.<key>=value``.
+:mod:`harness.planning` turns a request into a plan; :mod:`harness.runner` runs it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from algorithms.core.sac import UPDATES
+from harness.envs import ENVS
+from harness.words import ConfigError, boolean, names, parse_words
+from harness.words import integer as _int
+
+#: every key=value word of ``harness run``: (default, meaning); ``harness run --help`` prints this table
+RUN_KEYS: dict[str, tuple[str, str]] = {
+    "suite": ("-", "a suite in suites/ or a path to a suite YAML (its name names the results directory)"),
+    "algo": ("-", "algorithm(s), comma-separated (ad hoc; with a suite of cells: selects cells)"),
+    "algos": ("-", "same as algo"),
+    "env": ("-", f"env(s), comma-separated: {', '.join(ENVS)}"),
+    "envs": ("-", "same as env"),
+    "seeds": ("1", "a count (seeds 0..n-1) or a comma list of distinct seeds (one seed: 7, or [7])"),
+    "steps": ("/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env", "training steps per run"),
+    "eval_every": ("10000", "steps between deployed-policy evaluations"),
+    "eval_episodes": ("10", "episodes per evaluation"),
+    "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every; by default the first one from "
+                                  "50000 on)"),
+    "keep_every": ("0", "also keep the checkpoints at multiples of it (checkpoint-<step>.pt; each a full checkpoint)"),
+    "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every; default: the "
+                          "largest divisor of eval_every up to 1000)"),
+    "members": ("1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)", "seeds trained in lockstep by one process"),
+    "workers": ("cores (cuda: what the GPUs' memory and the cores hold)", "processes running groups in parallel"),
+    "device": ("cpu", "torch device, e.g. cpu or cuda:0"),
+    "results": ("results", "results directory"),
+    "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
+    "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
+    "env_workers": ("0 (cuda: spare cores)", "worker processes stepping the member envs of each group (0: in the group's process; "
+                         "for many seeds per process, e.g. on a GPU)"),
+    "update": ("default; a run resuming from its checkpoint: the mode it last ran with",
+               "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed runs), "
+               "static (one fixed kernel sequence, equal within rounding), compiled (static + torch.compile; CUDA "
+               "graphs on a GPU); a run resumes bit for bit only in the mode it ran with"),
+    "logger": ("parquet", "parquet, or tensorboard: the same rows also as TensorBoard events in each run's "
+                          "tensorboard/ directory (pip install tensorboard)"),
+    "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
+                          "(seconds each, cached) for the time estimate"),
+}
+#: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
+MAX_STEPS, MAX_SEEDS, MAX_SEED, MAX_MEMBERS, MAX_EPISODES, MAX_WORKERS = 10**9, 1000, 2**31 - 1, 1024, 10_000, 1024
+BACKENDS = ("local", "ray")
+LOGGERS = ("parquet", "tensorboard")
+DEFAULT_STEPS = {name: e.default_steps for name, e in ENVS.items()}  # each env's EnvInfo.default_steps
+
+
+def parse_seeds(v: Any) -> list[int]:
+    """``seeds=``: a count n (seeds 0..n-1) or a list of distinct seeds: a YAML list, or on the command line
+    ``0,3,7``, ``[0,3,7]``, and for one seed ``7,`` or ``[7]``."""
+    raw = v
+    if isinstance(v, str) and ("," in v or v.startswith("[")):
+        v = v.removeprefix("[").removesuffix("]").split(",")
+        if not v[-1].strip():  # "7," is the list [7], "[]" the empty list
+            v = v[:-1]
+    if isinstance(v, (list, tuple)):
+        if not v:
+            raise ConfigError("seeds is an empty list")
+        seeds = [_int("seeds", x, 0, MAX_SEED) for x in v]
+        if len(set(seeds)) != len(seeds):
+            raise ConfigError(f"seeds must be distinct, got {raw!r}")
+        if len(seeds) > MAX_SEEDS:
+            raise ConfigError(f"at most {MAX_SEEDS} seeds per run command, got {len(seeds)}")
+        return seeds
+    return list(range(_int("seeds", v, 1, MAX_SEEDS)))
+
+
+def check_device(v: str, local: bool = True) -> str:
+    """A torch device name; with ``local``, CUDA must be available here (a Ray cluster's GPUs need not be visible
+    from the driver)."""
+    try:
+        dev = torch.device(v)
+    except RuntimeError:
+        raise ConfigError(f"device must be a torch device such as cpu or cuda:0, got {v!r}") from None
+    if local and dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {v!r} requested but CUDA is not available on this machine")
+    return v
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What a ``harness run`` command asks for, parsed once from its words (:meth:`from_words`), or built directly
+    (``harness tune`` makes one per trial from the sampled parameters). ``None``: the suite's value (or the default).
+    ``config`` holds algorithm settings by scope (``{"all" | algo: {key: value}}``); ``study``/``trial`` mark a tuning
+    trial (its runs go under the suite ``tune_<study>`` and carry both in their metadata)."""
+
+    suite: str | None = None
+    algos: tuple[str, ...] = ()
+    envs: tuple[str, ...] = ()
+    seeds: tuple[int, ...] | None = None
+    steps: int | None = None
+    eval_every: int | None = None
+    eval_episodes: int | None = None
+    checkpoint_every: int | None = None
+    keep_every: int | None = None
+    log_every: int | None = None
+    members: int | None = None
+    workers: int | None = None
+    device: str = "cpu"
+    results: str = "results"
+    backend: str = "local"
+    ray_address: str | None = None
+    calibrate: bool = True
+    logger: str = "parquet"
+    env_workers: int | None = None
+    update: str | None = None  # None: the mode the runs last ran with (resumed_update), else default
+    config: dict[str, dict[str, Any]] = field(default_factory=dict)
+    study: str | None = None
+    trial: int | None = None
+
+    @classmethod
+    def from_words(cls, words: list[str]) -> "RunRequest":
+        """Parse and check the words of ``harness run`` (one line naming the first problem)."""
+        from harness.registry import ALGORITHMS
+
+        for w in words:  # name the unknown algorithm of an override, not just its scope
+            if "=" not in w:
+                continue  # parse_words names it
+            scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
+            if scope is not None and scope != "all" and scope not in ALGORITHMS:
+                raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
+        ov, config = parse_words(words, RUN_KEYS, scope=lambda s: s == "all" or s in ALGORITHMS)
+        for a, b in (("algo", "algos"), ("env", "envs")):
+            if a in ov and b in ov:
+                raise ConfigError(f"give {a}= or {b}=, not both")
+        backend = ov.get("backend", "local")
+        if backend not in BACKENDS:
+            raise ConfigError(f"unknown backend {backend!r}; known backends: {', '.join(BACKENDS)}")
+        if "ray_address" in ov and backend != "ray":
+            raise ConfigError("ray_address is only used with backend=ray")
+        device = check_device(ov.get("device", "cpu"), local=not (backend == "ray" and ov.get("ray_address")))
+
+        update = ov.get("update")
+        if update is not None and update not in UPDATES:
+            raise ConfigError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
+        logger = ov.get("logger", "parquet")
+        if logger not in LOGGERS:
+            raise ConfigError(f"unknown logger {logger!r}; known: {', '.join(LOGGERS)}")
+        if logger == "tensorboard":
+            from harness.tensorboard import check_available
+
+            check_available()
+
+        def opt(key: str, lo: int, hi: int) -> int | None:
+            return _int(key, ov[key], lo, hi) if key in ov else None
+
+        for key in ("results", "suite", "device", "backend"):
+            if key in ov and not str(ov[key]).strip():
+                raise ConfigError(f"{key}= is empty: give a value (or leave {key} out for its default)")
+        return cls(
+            suite=ov.get("suite"), algos=tuple(names("algo", ov.get("algos") or ov.get("algo") or [])),
+            envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
+            seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps", 1, MAX_STEPS),
+            eval_every=opt("eval_every", 1, MAX_STEPS), eval_episodes=opt("eval_episodes", 1, MAX_EPISODES),
+            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS),
+            keep_every=opt("keep_every", 0, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
+            members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
+            results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
+            calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
+            env_workers=opt("env_workers", 0, MAX_WORKERS), update=update,
+        )
