@@ -23,9 +23,10 @@ import torch
 from algorithms.api import AlgoConfig, Algorithm, DemoSet, Task, setting
 from algorithms.common import TrainLog
 from algorithms.core.buffer import StateBuffer
+from algorithms.core.losses import squashed_gaussian_log_prob
 from algorithms.core.nets import Stream, member_generators
 from algorithms.core.optim import MemberAdam
-from algorithms.core.sac import Actor, SACConfig, squashed_gaussian_log_prob
+from algorithms.core.sac import Actor, SACConfig
 
 ACTION_CLIP = 1 - 1e-6
 

@@ -1,5 +1,6 @@
 """The shape of the code: imports flow one way (algorithms never import harness; no module imports one that imports
-it back, counting imports inside functions too), found by walking the AST of every module."""
+it back, counting imports inside functions too), found by walking the AST of every module; no module is longer than a
+reader takes in at one sitting."""
 
 from __future__ import annotations
 
@@ -76,3 +77,14 @@ def test_algorithms_never_import_harness():
 def test_the_cycle_finder_finds_cycles():
     assert cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]
     assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+MAX_LINES = 400  # a module a reader takes in at one sitting; a larger one is split by job (runner.py -> request,
+# planning, provenance, runner; app.py -> harness/dashboard/)
+
+
+def test_no_module_over_400_lines():
+    files = [*(ROOT / "harness").rglob("*.py"), *(ROOT / "algorithms").rglob("*.py"), ROOT / "app.py"]
+    long = {str(p.relative_to(ROOT)): n for p in files if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert not long, f"over {MAX_LINES} lines: {long}"
+

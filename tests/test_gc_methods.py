@@ -24,12 +24,9 @@ from algorithms.risc import (
     success_target,
     switch_probability,
 )
-from algorithms.vaprl import (
+from algorithms.vaprl import VaPRL, VaPRLConfig, VaPRLRISC, VaPRLRISCConfig
+from algorithms.vaprl_curriculum import (
     LagrangeMultiplier,
-    VaPRL,
-    VaPRLConfig,
-    VaPRLRISC,
-    VaPRLRISCConfig,
     choose_subgoal,
     demo_prefix_relabel,
     demo_time_index,

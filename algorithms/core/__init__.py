@@ -3,6 +3,7 @@ MEDAL discriminator (§9)."""
 
 from .buffer import MemberStorage, SegmentReplayBuffer, StateBuffer
 from .discriminator import Discriminator, discriminator_reward
+from .losses import squashed_gaussian_log_prob
 from .nets import (
     MemberLayerNorm,
     MemberLinear,
@@ -13,7 +14,7 @@ from .nets import (
     member_randn,
 )
 from .optim import FlatMembers, MemberAdam, polyak_update
-from .sac import SAC, Actor, Critic, SACConfig, squashed_gaussian_log_prob
+from .sac import SAC, Actor, Critic, SACConfig
 
 __all__ = [
     "Actor",

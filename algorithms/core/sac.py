@@ -1,4 +1,4 @@
-"""Seed-batched SAC as in the MEDAL reference code (docs/algorithms.md §3).
+"""Seed-batched SAC as in the MEDAL reference code (docs/algorithms.md §3); its losses are in :mod:`.losses`.
 
 One :class:`SAC` object holds E independent agents ("members", one per seed) with a leading member dimension on every
 parameter, optimizer state and random stream. Member i behaves exactly like an E=1 agent built with ``seeds[i]``.
@@ -19,6 +19,15 @@ from torch import nn
 from algorithms.api import setting
 
 from . import manual
+from .losses import (
+    actor_loss,
+    actor_loss_grads,
+    critic_loss,
+    critic_loss_grad,
+    squashed_gaussian_backward,
+    squashed_gaussian_log_prob,
+    temperature_loss,
+)
 from .nets import (
     MemberMLP,
     MemberTrunk,
@@ -30,8 +39,6 @@ from .nets import (
     member_randn,
 )
 from .optim import FlatMembers, MemberAdam, polyak_update, polyak_update_masked
-
-HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
 @dataclass
@@ -52,58 +59,6 @@ class SACConfig:
     use_trunk: bool = setting(True, "Linear -> LayerNorm -> Tanh feature layer before the MLPs (3.1)")
     bootstrap_on_truncation: bool = setting(False, "bootstrap through time-outs and switches (RISC's TAB); "
                                                    "False: they end bootstrapping as terminals do (MEDAL code)")
-
-
-def squashed_gaussian_log_prob(u: torch.Tensor, eps: torch.Tensor, log_std: torch.Tensor) -> torch.Tensor:
-    """log pi(tanh(u)) for u = mu + sigma * eps, summed over the last dim (§3.2):
-    sum_d [ log N(u; mu, sigma) - 2 * (log 2 - u - softplus(-2u)) ], the second term being log(1 - tanh(u)^2)."""
-    normal = -0.5 * eps.square() - log_std - HALF_LOG_2PI
-    log_det = 2.0 * (math.log(2.0) - u - nn.functional.softplus(-2.0 * u))
-    return (normal - log_det).sum(-1)
-
-
-def squashed_gaussian_backward(d_action, d_log_prob, action, std, eps, log_std_raw, bounds) -> torch.Tensor:
-    """The gradient of a = tanh(mu + sigma * eps) and its log pi with respect to the actor's raw output (mean, log sigma
-    before the clamp), from dL/da and dL/d log pi: d log pi / du = 2 tanh(u) (the tanh Jacobian's term),
-    d log pi / d log sigma = -1 at fixed eps, and no gradient where the clamp to ``bounds`` is active."""
-    d_u = d_log_prob * 2.0 * action + d_action * (1.0 - action * action)
-    in_range = (log_std_raw >= bounds[0]) & (log_std_raw <= bounds[1])
-    d_log_std = (d_u * std * eps - d_log_prob) * in_range
-    return torch.cat([d_u, d_log_std], -1)
-
-
-# ---------------------------------------------------------------------------------------------------------------------
-# The three losses of a SAC update (§3.2), per member (E,). Both update paths use them: ``update="autograd"`` through
-# torch.autograd, the others beside the hand-derived gradient written under each one. Edit a loss here, then its
-# gradient (tests/test_core_sac.py compares the two paths), or train with update=autograd, which needs no gradient.
-
-
-def critic_loss(q: torch.Tensor, target_q: torch.Tensor) -> torch.Tensor:
-    """0.5 * (MSE(Q1, y) + MSE(Q2, y)) for the heads q (E, 2, B) and the TD target y (E, B)."""
-    return 0.5 * (q - target_q.unsqueeze(1)).square().mean(dim=2).sum(dim=1)
-
-
-def critic_loss_grad(q: torch.Tensor, target_q: torch.Tensor) -> torch.Tensor:
-    """d critic_loss / d q = (q - y) / B, (E, 2, B)."""
-    return (q - target_q.unsqueeze(1)) / q.shape[2]
-
-
-def actor_loss(alpha: torch.Tensor, log_prob: torch.Tensor, q_pi: torch.Tensor) -> torch.Tensor:
-    """mean_b (alpha * log pi(a|o) - min_j Q_j(o, a)) for a ~ pi(.|o): alpha (E,), log_prob (E, B), q_pi (E, 2, B)."""
-    return (alpha[:, None] * log_prob - q_pi.min(dim=1).values).mean(dim=1)
-
-
-def actor_loss_grads(alpha: torch.Tensor, q_pi: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(d actor_loss / d q_pi: -1/B at the smaller head, 0 at the other, (E, 2, B); d actor_loss / d log pi: alpha / B,
-    (E, 1, 1))."""
-    B = q_pi.shape[2]
-    d_q = torch.zeros_like(q_pi).scatter_(1, q_pi.min(dim=1).indices.unsqueeze(1), -1.0 / B)
-    return d_q, (alpha / B)[:, None, None]
-
-
-def temperature_loss(log_alpha: torch.Tensor, log_prob: torch.Tensor, target_entropy: float) -> torch.Tensor:
-    """alpha * mean_b (-log pi(a|o) - H_target); its gradient with respect to log alpha is the loss itself."""
-    return log_alpha.exp() * (-log_prob - target_entropy).mean(dim=1)
 
 
 class Actor(nn.Module):

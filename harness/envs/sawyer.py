@@ -1,45 +1,42 @@
 """EARL's Sawyer door and peg tasks on MuJoCo 3 / Meta-World 3.
 
-EARL (Sharma et al. 2021, github.com/architsharma97/earl_benchmark, ``envs/sawyer_door.py`` and
-``envs/sawyer_peg.py``) subclassed Meta-World v2 (mujoco-py, MuJoCo 2) environments. Here the same
-tasks subclass Meta-World 3's :class:`SawyerDoorCloseEnvV3` / :class:`SawyerPegInsertionSideEnvV3`
-*and* the project's :class:`~harness.envs.base.EarlEnv`.
+EARL (Sharma et al. 2021, github.com/architsharma97/earl_benchmark, ``envs/sawyer_door.py`` and ``envs/sawyer_peg.py``)
+subclassed Meta-World v2 (mujoco-py, MuJoCo 2) environments. Here the same tasks subclass Meta-World 3's
+:class:`SawyerDoorCloseEnvV3` / :class:`SawyerPegInsertionSideEnvV3` *and* the project's
+:class:`~harness.envs.base.EarlEnv`.
 
 What is EARL-exact
-  - the MuJoCo model files: EARL's copies of the Meta-World Sawyer models, loaded from the EARL data
-    directory (``assets/metaworld_earl``). They differ from Meta-World 3's only in the door (hinge range
-    [-1.4, 0], density 50: a light door) and two cameras;
-  - the observation ``[hand xyz, gripper opening, handle / peg-head xyz, goal (7)]`` (14 dims, no
-    clipping), the action (mocap xyz delta ``clip(a, -1, 1) * 0.01`` clipped to the hand box, gripper
-    control ``[a3, -a3]``, 5 substeps of 2.5 ms), the sparse reward ``1[success]`` computed from the
-    returned observation (``EnvSpec.compute_reward``), and no episode limit (EARL sets
-    ``max_path_length = 1e8``; the time limits are gymnasium wrappers outside the env);
-  - the reset: 50 hand-settling steps with the mocap at EARL's ``hand_init_pos`` and the gripper open,
-    then the object: door hinge at ``-pi/3 + U(0, pi/20)`` (EARL's ``random_init`` branch); peg body at
-    ``U((0, .5, .02), (.2, .7, .02))`` with the box at ``goal - (.03, 0, .13)``; goal = the task goal.
-    EARL's listed door initial state is the noise-0 sample (angle exactly ``-pi/3``; our handle matches
-    it to 2e-8); pass ``angle_noise=False`` to always reset there. EARL's 15 peg initial states are 15
-    samples of the peg distribution (head = body + (-0.1, 0, 0)).
+  - the MuJoCo model files: EARL's copies of the Meta-World Sawyer models, loaded from the EARL data directory
+    (``assets/metaworld_earl``). They differ from Meta-World 3's only in the door (hinge range [-1.4, 0], density 50: a
+    light door) and two cameras;
+  - the observation ``[hand xyz, gripper opening, handle / peg-head xyz, goal (7)]`` (14 dims, no clipping), the action
+    (mocap xyz delta ``clip(a, -1, 1) * 0.01`` clipped to the hand box, gripper control ``[a3, -a3]``, 5 substeps of
+    2.5 ms), the sparse reward ``1[success]`` computed from the returned observation (``EnvSpec.compute_reward``), and
+    no episode limit (EARL sets ``max_path_length = 1e8``; the time limits are gymnasium wrappers outside the env);
+  - the reset: 50 hand-settling steps with the mocap at EARL's ``hand_init_pos`` and the gripper open, then the object:
+    door hinge at ``-pi/3 + U(0, pi/20)`` (EARL's ``random_init`` branch); peg body at
+    ``U((0, .5, .02), (.2, .7, .02))`` with the box at ``goal - (.03, 0, .13)``; goal = the task goal. EARL's listed
+    door initial state is the noise-0 sample (angle exactly ``-pi/3``; our handle matches it to 2e-8); pass
+    ``angle_noise=False`` to always reset there. EARL's 15 peg initial states are 15 samples of the peg distribution
+    (head = body + (-0.1, 0, 0)).
 
 What differs (MuJoCo 3 / Meta-World 3) and why
-  - physics is MuJoCo 3 with Meta-World 3's weld settings (``reset_mocap_welds``: relpose quat
-    (-1, 0, 0, 0), torquescale 5) and MuJoCo 3's Euler integrator with implicit joint damping. The hand
-    therefore settles 1-2 mm away from EARL's published position (published hand
-    ``[0.0062, 0.6002, 0.1943]``, ours ``[0.0046, 0.6014, 0.1951]`` for peg), and open-loop replays of
-    EARL's demos drift (see ``tests/test_sawyer.py``);
-  - observations are computed after ``mj_kinematics`` on the post-step state (Meta-World 3 calls
-    ``mj_forward``; mujoco-py's EARL read positions one substep stale). Positions only, so it is cheap;
-  - randomness comes only from ``self.np_random`` (seeded by ``reset(seed=...)``); Meta-World 3.1.1
-    ignores ``reset(seed=)`` and draws from the global ``np.random`` in ``_get_state_rand_vec``: we
-    never call it, and never touch the global RNG;
+  - physics is MuJoCo 3 with Meta-World 3's weld settings (``reset_mocap_welds``: relpose quat (-1, 0, 0, 0),
+    torquescale 5) and MuJoCo 3's Euler integrator with implicit joint damping. The hand therefore settles 1-2 mm away
+    from EARL's published position (published hand ``[0.0062, 0.6002, 0.1943]``, ours ``[0.0046, 0.6014, 0.1951]`` for
+    peg), and open-loop replays of EARL's demos drift (see ``tests/test_sawyer.py``);
+  - observations are computed after ``mj_kinematics`` on the post-step state (Meta-World 3 calls ``mj_forward``;
+    mujoco-py's EARL read positions one substep stale). Positions only, so it is cheap;
+  - randomness comes only from ``self.np_random`` (seeded by ``reset(seed=...)``); Meta-World 3.1.1 ignores
+    ``reset(seed=)`` and draws from the global ``np.random`` in ``_get_state_rand_vec``: we never call it, and never
+    touch the global RNG;
   - one ``mj_resetData`` per reset (Meta-World 3's ``reset`` resets the model twice);
-  - the door body is placed at EARL's ``obj_init_pos`` once in ``__init__`` (EARL moved it after the
-    first hand settling; the hand never touches the door there, so resets are identical);
+  - the door body is placed at EARL's ``obj_init_pos`` once in ``__init__`` (EARL moved it after the first hand
+    settling; the hand never touches the door there, so resets are identical);
   - ``reset(options={"state": obs})`` is ours (EARL had no such option), see :meth:`reset`.
 
 EARL's constants, the two :class:`~harness.envs.base.EnvSpec` and their catalogue entries are in
-:mod:`harness.envs.sawyer_tasks` (importable without Meta-World).
-"""
+:mod:`harness.envs.sawyer_tasks` (importable without Meta-World)."""
 
 from __future__ import annotations
 
@@ -64,11 +61,11 @@ _HAND_SETTLE_STEPS = 50  # Meta-World's _reset_hand(steps=50)
 class _SawyerEarl(MujocoRendering, EarlEnv):
     """Shared EARL Sawyer logic, mixed in *before* a Meta-World 3 env class.
 
-    ``class SawyerXEnv(_SawyerEarl, MetaWorldXEnvV3)``: the MRO is ours -> ``MujocoRendering`` -> ``EarlEnv`` -> Meta-World's
-    env -> ``SawyerXYZEnv`` -> ``MujocoEnv`` -> ``gym.Env``. ``__init__`` runs Meta-World's constructor
-    (which builds the MuJoCo model from :attr:`model_name`, overridden to EARL's file, and applies
-    Meta-World 3's weld settings) and then ``EarlEnv.__init__`` (EARL's spaces). ``reset``/``step``/
-    ``render`` are ours; Meta-World's helpers (``tcp_center``, ``_get_site_pos``...) keep working.
+    ``class SawyerXEnv(_SawyerEarl, MetaWorldXEnvV3)``: the MRO is ours -> ``MujocoRendering`` -> ``EarlEnv`` ->
+    Meta-World's env -> ``SawyerXYZEnv`` -> ``MujocoEnv`` -> ``gym.Env``. ``__init__`` runs Meta-World's constructor
+    (which builds the MuJoCo model from :attr:`model_name`, overridden to EARL's file, and applies Meta-World 3's weld
+    settings) and then ``EarlEnv.__init__`` (EARL's spaces). ``reset``/``step``/``render`` are ours; Meta-World's
+    helpers (``tcp_center``, ``_get_site_pos``...) keep working.
 
     Subclasses set ``spec_``, ``_xml``, ``_hand_init`` and implement the object hooks.
     """
@@ -152,10 +149,9 @@ class _SawyerEarl(MujocoRendering, EarlEnv):
 
     # -- reset -------------------------------------------------------------------------------------
     def _settle_hand(self, mocap_target: np.ndarray, steps: int = _HAND_SETTLE_STEPS) -> None:
-        """Meta-World's ``_reset_hand``: hold the mocap at the target, gripper open, ``steps`` x 5 substeps.
-
-        The mocap is set to the same value at each of Meta-World's 50 iterations, so a single
-        ``mj_step(nstep=250)`` is bitwise identical."""
+        """Meta-World's ``_reset_hand``: hold the mocap at the target, gripper open, ``steps`` x 5 substeps. The
+        mocap is set to the same value at each of Meta-World's 50 iterations, so one ``mj_step(nstep=250)`` is
+        bitwise identical."""
         d = self.data
         d.mocap_pos[0] = mocap_target
         d.mocap_quat[0] = _MOCAP_QUAT
@@ -232,9 +228,9 @@ class _SawyerEarl(MujocoRendering, EarlEnv):
 
     # -- step --------------------------------------------------------------------------------------
     def step(self, action):
-        """One EARL step: mocap delta ``clip(a[:3], -1, 1) * action_scale`` clipped to the hand box,
-        gripper control ``[a3, -a3]`` (clipped to the actuators' ctrlrange [-1, 1]), 5 substeps.
-        Reward ``1[success]`` on the returned observation; never terminates or truncates."""
+        """One EARL step: mocap delta ``clip(a[:3], -1, 1) * action_scale`` clipped to the hand box, gripper control
+        ``[a3, -a3]`` (clipped to the actuators' ctrlrange [-1, 1]), 5 substeps. Reward ``1[success]`` on the returned
+        observation; never terminates or truncates."""
         a = np.clip(np.asarray(action, dtype=np.float64).reshape(-1), -1.0, 1.0)
         d = self.data
         pos = d.mocap_pos[0] + a[:3] * self.action_scale
