@@ -154,8 +154,9 @@ def measure_update(agent: SAC, update: str = "default", repeats: int = 5, n: int
             total = time.perf_counter() - t
         split = {k: v / n for k, v in timer.seconds.items()}
         split["other"] = max(total / n - sum(split.values()), 0.0)
+    flops = sum(2 * a.shape[0] * a.shape[1] * a.shape[2] * w.shape[2] for a, w, *_ in calls)  # (E, n, k) @ (E, k, m)
     return {"cpu": cpu_name(), "threads": torch.get_num_threads(), "update_ms": t_update * 1e3,
-            "ceiling_ms": t_ceiling * 1e3, "products": len(calls), "ratio": t_ceiling / t_update,
+            "ceiling_ms": t_ceiling * 1e3, "products": len(calls), "gflop": flops / 1e9, "ratio": t_ceiling / t_update,
             "split_ms": {k: v * 1e3 for k, v in split.items()}}
 
 
@@ -174,7 +175,7 @@ def bench_update(algo: str, env: str, members: int = 1, update: str = "default",
         f"act={agent.act_dim} update={update} threads={r['threads']} cpu={r['cpu']} torch={torch.__version__}")
     log(f"  one update       {r['update_ms']:7.2f} ms  ({1e3 / r['update_ms']:6.1f} updates/s)")
     log(f"  matmul ceiling   {r['ceiling_ms']:7.2f} ms  ({1e3 / r['ceiling_ms']:6.1f} updates/s; "
-        f"{r['products']} products back to back)")
+        f"{r['products']} products back to back: {r['gflop']:.2f} GFLOP, {r['gflop'] / r['ceiling_ms'] * 1e3:.0f} GFLOP/s)")
     log(f"  ratio reached    {r['ratio']:7.2f}")
     split = r["split_ms"]
     if split:
@@ -188,9 +189,34 @@ def bench_update(algo: str, env: str, members: int = 1, update: str = "default",
     return r
 
 
+RECORD_HEADER = ("| date | commit | CPU | torch | threads | algo · env | members | update | allocator | update ms | "
+                 "ceiling ms | ratio |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+
+
+def record_row(path: Path, r: dict, algo: str, env: str, members: int, update: str, allocator: str) -> None:
+    """Append the measurement as a row of the Markdown table in ``path`` (made with its header if new): the machine,
+    commit and date go with every number."""
+    from datetime import datetime, timezone
+
+    from harness.data import atomic_write_bytes
+    from harness.provenance import git_sha
+
+    old = path.read_text() if path.exists() else ""
+    if RECORD_HEADER not in old:
+        old += ("\n" if old and not old.endswith("\n") else "") + RECORD_HEADER
+    sha = git_sha()
+    row = (f"| {datetime.now(timezone.utc):%Y-%m-%d} | {sha[:8]}{'-dirty' if sha.endswith('-dirty') else ''} | {r['cpu']} | {torch.__version__} | "
+           f"{r['threads']} | {algo} · {env} | {members} | {update} | {allocator} | {r['update_ms']:.2f} | "
+           f"{r['ceiling_ms']:.2f} | {r['ratio']:.2f} |\n")
+    atomic_write_bytes(path, (old + row).encode())
+
+
 def bench_update_cli(ov: dict[str, str]) -> int:
     algo, env, update = training_words("update", ov)
     torch.set_num_threads(optional_integer("threads", ov.get("threads"), 1, 1))
-    bench_update(algo, env, optional_integer("members", ov.get("members"), 1, 1), update,
-                 optional_integer("repeats", ov.get("repeats"), 5, 1), optional_integer("n", ov.get("n"), 50, 1))
+    members = optional_integer("members", ov.get("members"), 1, 1)
+    r = bench_update(algo, env, members, update, optional_integer("repeats", ov.get("repeats"), 5, 1),
+                     optional_integer("n", ov.get("n"), 50, 1))
+    if ov.get("record"):
+        record_row(Path(ov["record"]), r, algo, env, members, update, ov.get("allocator", "keep"))
     return 0

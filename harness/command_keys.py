@@ -54,6 +54,7 @@ BENCH: dict[str, KeyHelp] = {
         "threads": ("1", "torch threads"), "repeats": ("5", "timed rounds (the median is reported)"),
         "n": ("50", "updates per round"),
         "allocator": ("keep", "keep: freed heap kept for reuse, as training runs; glibc: its defaults"),
+        "record": ("-", "append the result as a row (date, commit, CPU) to this Markdown file, e.g. docs/performance.md"),
     },
     "matmul": {"members": ("2", "seeds per product"), "repeats": ("5", "timed repeats")},
     "app": {"runs": ("100", "synthetic runs"), "evals": ("300", "evaluations per run"), "repeats": ("3", "page loads"),

@@ -1,13 +1,14 @@
 """Fingerprint what training produces, to show a refactor leaves every result bit for bit unchanged.
 
     python scripts/fingerprint.py OUT.json [algo=medal,risc] [update=default,compiled] [env=tabletop_manipulation]
+                                           [steps=1500] [eval_every=500]
     python scripts/fingerprint.py --compare BEFORE.json AFTER.json
 
 For each (algorithm, update mode) it runs ``harness run`` with a tiny budget (two seeds trained as two members of one
-process, updates on after 500 steps where the method has a seed phase, an evaluation every 500 steps) into a temporary directory and records sha256
-hashes of: the evaluation rows, the training-diagnostics rows (both without the wall-clock metrics and the git SHA),
-and every tensor of the final checkpoint (weights, optimizer state, random streams). ``--compare`` prints the rows
-that differ and exits 1 if any does.
+process, updates on after 500 steps where the method has a seed phase, an evaluation every 500 steps) into a
+temporary directory and records sha256 hashes of: the evaluation rows, the training-diagnostics rows (both without the
+wall-clock metrics and the git SHA), and every tensor of the final checkpoint (weights, optimizer state, random
+streams). ``--compare`` prints the rows that differ and exits 1 if any does.
 """
 
 from __future__ import annotations
@@ -66,13 +67,13 @@ def _hash_checkpoint(path: Path) -> str:
     return h.hexdigest()[:16]
 
 
-def fingerprint(algo: str, update: str, env: str) -> dict:
+def fingerprint(algo: str, update: str, env: str, steps: int = STEPS, eval_every: int = EVAL_EVERY) -> dict:
     from harness.registry import ALGORITHMS
 
     seed_phase = [f"{algo}.seed_steps={SEED_STEPS}"] if "seed_steps" in ALGORITHMS[algo].Config.keys() else []
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [sys.executable, "-m", "harness.cli", "run", f"algo={algo}", f"env={env}", "seeds=2", "members=2",
-               f"steps={STEPS}", f"eval_every={EVAL_EVERY}", *seed_phase, f"update={update}",
+               f"steps={steps}", f"eval_every={eval_every}", *seed_phase, f"update={update}",
                "workers=1", f"results={tmp}", "eval_episodes=2"]
         proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
         if proc.returncode:
@@ -106,7 +107,8 @@ def main(argv: list[str]) -> int:
     rows = []
     for algo in algos:
         for update in updates:
-            rows.append(fingerprint(algo, update, env))
+            rows.append(fingerprint(algo, update, env, int(words.get("steps", STEPS)),
+                                    int(words.get("eval_every", EVAL_EVERY))))
             print(json.dumps(rows[-1]), flush=True)
     out.write_text(json.dumps(rows, indent=1))
     return 0

@@ -6,7 +6,7 @@ import torch
 
 from algorithms.core import SAC, SACConfig
 from harness.backends import keep_freed_memory, use_allocator
-from harness.bench_update import measure_update
+from harness.bench_update import RECORD_HEADER, measure_update, record_row
 from harness.words import ConfigError
 
 
@@ -46,3 +46,19 @@ def test_keep_freed_memory_leaves_results_unchanged():
     assert all(torch.equal(before[k], after[k]) for k in before)
     with pytest.raises(ConfigError, match="unknown allocator 'tcmalloc'; known: keep, glibc"):
         use_allocator("tcmalloc")
+
+
+def test_record_appends_rows_under_one_header(tmp_path):
+    """``record=`` keeps the prose of the file, adds the table's header once and a row per measurement, each with
+    its date, commit and CPU."""
+    path = tmp_path / "performance.md"
+    path.write_text("# Performance\n\nSome prose.\n")
+    r = {"cpu": "Test CPU (AVX2)", "threads": 1, "update_ms": 12.345, "ceiling_ms": 9.0, "ratio": 0.729}
+    record_row(path, r, "medal", "sawyer_door", 1, "default", "keep")
+    record_row(path, {**r, "update_ms": 9.5, "ratio": 0.947}, "medal", "sawyer_door", 1, "compiled", "keep")
+    text = path.read_text()
+    assert text.startswith("# Performance\n\nSome prose.\n") and text.count(RECORD_HEADER) == 1
+    rows = text.split(RECORD_HEADER)[1].splitlines()
+    assert len(rows) == 2 and "| Test CPU (AVX2) |" in rows[0]
+    assert rows[0].endswith("| default | keep | 12.35 | 9.00 | 0.73 |")
+    assert rows[1].endswith("| compiled | keep | 9.50 | 9.00 | 0.95 |")
