@@ -204,7 +204,7 @@ def record_row(path: Path, r: dict, algo: str, env: str, members: int, update: s
     old = path.read_text() if path.exists() else ""
     if RECORD_HEADER not in old:
         old += ("\n" if old and not old.endswith("\n") else "") + RECORD_HEADER
-    sha = git_sha()
+    sha = git_sha(ignore=path)
     row = (f"| {datetime.now(timezone.utc):%Y-%m-%d} | {sha[:8]}{'-dirty' if sha.endswith('-dirty') else ''} | {r['cpu']} | {torch.__version__} | "
            f"{r['threads']} | {algo} · {env} | {members} | {update} | {allocator} | {r['update_ms']:.2f} | "
            f"{r['ceiling_ms']:.2f} | {r['ratio']:.2f} |\n")

@@ -15,16 +15,19 @@ from harness.plan import RunSpec
 PACKAGES = ("torch", "numpy", "gymnasium", "mujoco", "metaworld", "pandas", "pyarrow", "earl-harness")
 
 
-def git_sha(root: Path | None = None) -> str:
+def git_sha(root: Path | None = None, ignore: Path | None = None) -> str:
     """HEAD's SHA, with ``-dirty`` when tracked files differ from it (the results then come from code that
-    no commit holds); ``unknown`` outside a git checkout, e.g. an installed wheel."""
+    no commit holds); ``unknown`` outside a git checkout, e.g. an installed wheel. ``ignore``: a file whose changes do
+    not count (the file a measurement is being recorded into)."""
     root = root or Path(__file__).resolve().parent.parent
     try:
         git = ["git", "-C", str(root)]
         sha = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5).stdout.strip()
         if not sha:
             return "unknown"
-        dirty = subprocess.run([*git, "diff", "--quiet", "HEAD", "--"], capture_output=True, timeout=5).returncode == 1
+        skip = [f":(exclude){Path(ignore).resolve()}"] if ignore is not None else []
+        dirty = subprocess.run([*git, "diff", "--quiet", "HEAD", "--", str(root), *skip], capture_output=True,
+                               timeout=5).returncode == 1
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.SubprocessError):
         return "unknown"

@@ -201,8 +201,14 @@ def test_git_sha_marks_uncommitted_changes(tmp_path):
     head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
     (tmp_path / "notes.txt").write_text("untracked files do not count\n")
     assert git_sha(tmp_path) == head
+    (tmp_path / "perf.md").write_text("rows\n")
+    subprocess.run([*git, "add", "perf.md"], check=True)
+    subprocess.run([*git, "commit", "-qm", "b"], check=True)
+    head = subprocess.run([*git, "rev-parse", "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
+    (tmp_path / "perf.md").write_text("rows\nand a new one\n")  # a bench recording into a tracked file
+    assert git_sha(tmp_path) == head + "-dirty" and git_sha(tmp_path, ignore=tmp_path / "perf.md") == head
     (tmp_path / "a.py").write_text("x = 2\n")
-    assert git_sha(tmp_path) == head + "-dirty"
+    assert git_sha(tmp_path) == git_sha(tmp_path, ignore=tmp_path / "perf.md") == head + "-dirty"
 
 
 def test_seed_lists():
