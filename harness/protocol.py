@@ -216,107 +216,134 @@ def train(
     eval_envs = make_envs(spec.env, E, spec.env_workers, "eval")
     closers: list = [inter, eval_envs]
     try:
-        return _train(spec, algo, inter, eval_envs, on_progress, should_stop, closers)
+        return TrainingRun(spec, algo, inter, eval_envs, on_progress, closers).run(should_stop)
     finally:
         for c in closers:
             c.close()
 
 
-def _train(spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalEnvs | WorkerEnvs,
-           on_progress: Callable[[Progress], None] | None, should_stop: Callable[[], bool] | None,
-           closers: list) -> list[RunResults]:
-    E = len(spec.seeds)
-    dirs = spec.member_dirs()
-    results = [
-        RunResults(d, {"suite": spec.suite, "env": spec.env, "algo": spec.algo, "seed": s}, {**spec.meta, "members": E})
-        for d, s in zip(dirs, spec.seeds)
-    ]
-    diagnostics = [RunResults(r.dir, r.ident, {**spec.meta, "members": E}, TRAIN_FILE) for r in results]
-    ckpt_path = spec.checkpoint_path()
-    status = "running"
-    if ckpt_path.exists():
-        ck = load_checkpoint(ckpt_path, spec.device)
-        step, wall, last_success = ck["step"], ck["wall_s"], ck["last_success"]
-        algo.load_state_dict(ck["algo"])
-        inter.load_state_dict(ck["interaction"])
-        if spec.keep_every and step % spec.keep_every == 0:  # killed between the checkpoint and keeping it
-            _keep(ckpt_path, step)
-        for r in results + diagnostics:
-            r.resume(step)
-        status = "resumed"
-        if on_progress:
-            on_progress(Progress(step, spec.steps, 0.0, math.inf, list(last_success), resumed=True))
-    else:
-        step, wall = 0, 0.0
-        inter.start(algo)
-        last_success = [float("nan")] * E
-    if spec.tensorboard:
-        from harness.tensorboard import TensorBoardRun
+@dataclass(frozen=True)
+class Every:
+    """A schedule of the loop: due at every multiple of ``n`` and at the run's last step (``last``)."""
 
-        for r, d in zip(results, diagnostics):
-            tb = TensorBoardRun(r.dir, step if status == "resumed" else None)
-            closers.append(tb)
-            r.mirror_to(tb.tagged("eval"))
-            d.mirror_to(tb.tagged("train"))
+    n: int
+    last: int
 
-    def checkpoint() -> None:
-        state = {"step": step, "wall_s": wall, "last_success": last_success, "device": spec.device}
-        _atomic_torch_save({**state, "algo": algo.state_dict(), "interaction": inter.state_dict()}, ckpt_path)
-        if spec.keep_every and step % spec.keep_every == 0:
-            _keep(ckpt_path, step)
+    def __call__(self, step: int) -> bool:
+        return step % self.n == 0 or step == self.last
 
-    def report(rate: float, state: str) -> None:
-        eta = (spec.steps - step) / rate if rate > 0 else math.inf
-        for d, succ in zip(dirs, last_success):
-            write_status(d, state=state, step=step, total=spec.steps, steps_per_s=rate, eta_s=eta, last_success=succ)
-        if on_progress:
-            on_progress(Progress(step, spec.steps, rate, eta, list(last_success)))
 
-    def log_eval(rate: float) -> None:
-        nonlocal last_success
-        succ, ret = evaluate(algo, eval_envs, spec.seeds, step, spec.eval_episodes)
-        last_success = succ.tolist()
-        n_inter = inter.interventions()
-        for i, r in enumerate(results):
-            r.append(step, {
-                "deployed_success": succ[i], "deployed_return": ret[i], "continuing_reward": inter.cum_reward[i],
-                "interventions": n_inter[i], "steps_per_s": rate, "wall_s": wall,
+class TrainingRun:
+    """One group's training under the EARL protocol: resume or start, then step, log, evaluate and checkpoint on
+    their schedules until ``spec.steps``. Each training step is ``Interaction.step``: act (MEDAL-family methods
+    update here, before the env moves, as MEDAL's code does), env step, observe (goal-conditioned methods update
+    here, after storing the transition, as RISC's code does), resets."""
+
+    def __init__(self, spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalEnvs | WorkerEnvs,
+                 on_progress: Callable[[Progress], None] | None, closers: list):
+        self.spec, self.algo, self.inter, self.eval_envs, self.on_progress = spec, algo, inter, eval_envs, on_progress
+        E = len(spec.seeds)
+        self.dirs = spec.member_dirs()
+        meta = {**spec.meta, "members": E}
+        ident = {"suite": spec.suite, "env": spec.env, "algo": spec.algo}
+        self.results = [RunResults(d, {**ident, "seed": s}, meta) for d, s in zip(self.dirs, spec.seeds)]
+        self.diagnostics = [RunResults(r.dir, r.ident, meta, TRAIN_FILE) for r in self.results]
+        self.ckpt_path = spec.checkpoint_path()
+        self.log_due, self.eval_due = Every(spec.log_every, spec.steps), Every(spec.eval_every, spec.steps)
+        self.checkpoint_due = Every(spec.checkpoint_every, spec.steps)
+        self.status = "running"
+        self.step, self.wall, self.last_success = 0, 0.0, [float("nan")] * E
+        if self.ckpt_path.exists():
+            self._resume()
+        else:
+            inter.start(algo)
+        if spec.tensorboard:
+            from harness.tensorboard import TensorBoardRun
+
+            for r, d in zip(self.results, self.diagnostics):
+                tb = TensorBoardRun(r.dir, self.step if self.status == "resumed" else None)
+                closers.append(tb)
+                r.mirror_to(tb.tagged("eval"))
+                d.mirror_to(tb.tagged("train"))
+
+    def _resume(self) -> None:
+        spec = self.spec
+        ck = load_checkpoint(self.ckpt_path, spec.device)
+        self.step, self.wall, self.last_success = ck["step"], ck["wall_s"], ck["last_success"]
+        self.algo.load_state_dict(ck["algo"])
+        self.inter.load_state_dict(ck["interaction"])
+        if spec.keep_every and self.step % spec.keep_every == 0:  # killed between the checkpoint and keeping it
+            _keep(self.ckpt_path, self.step)
+        for r in self.results + self.diagnostics:
+            r.resume(self.step)
+        self.status = "resumed"
+        if self.on_progress:
+            self.on_progress(Progress(self.step, spec.steps, 0.0, math.inf, list(self.last_success), resumed=True))
+
+    def checkpoint(self) -> None:
+        state = {"step": self.step, "wall_s": self.wall, "last_success": self.last_success, "device": self.spec.device}
+        _atomic_torch_save({**state, "algo": self.algo.state_dict(), "interaction": self.inter.state_dict()},
+                           self.ckpt_path)
+        if self.spec.keep_every and self.step % self.spec.keep_every == 0:
+            _keep(self.ckpt_path, self.step)
+
+    def report(self, rate: float, state: str) -> None:
+        spec = self.spec
+        eta = (spec.steps - self.step) / rate if rate > 0 else math.inf
+        for d, succ in zip(self.dirs, self.last_success):
+            write_status(d, state=state, step=self.step, total=spec.steps, steps_per_s=rate, eta_s=eta,
+                         last_success=succ)
+        if self.on_progress:
+            self.on_progress(Progress(self.step, spec.steps, rate, eta, list(self.last_success)))
+
+    def log_eval(self, rate: float) -> None:
+        """Deployed evaluation of every member; its row with the continuing metrics; the diagnostics rows flushed."""
+        succ, ret = evaluate(self.algo, self.eval_envs, self.spec.seeds, self.step, self.spec.eval_episodes)
+        self.last_success = succ.tolist()
+        n_inter = self.inter.interventions()
+        for i, r in enumerate(self.results):
+            r.append(self.step, {
+                "deployed_success": succ[i], "deployed_return": ret[i], "continuing_reward": self.inter.cum_reward[i],
+                "interventions": n_inter[i], "steps_per_s": rate, "wall_s": self.wall,
             })
-        for d in diagnostics:
+        for d in self.diagnostics:
             d.flush()
-        report(rate, status)
+        self.report(rate, self.status)
 
-    def log_train() -> None:
+    def log_train(self) -> None:
         """Algorithm.metrics() (means since the last call), finite values only, written with the next evaluation."""
-        m = algo.metrics()
-        for i, d in enumerate(diagnostics):
-            d.append(step, {k: float(v[i]) for k, v in m.items() if np.isfinite(v[i])}, flush=False)
+        m = self.algo.metrics()
+        for i, d in enumerate(self.diagnostics):
+            d.append(self.step, {k: float(v[i]) for k, v in m.items() if np.isfinite(v[i])}, flush=False)
 
-    report(0.0, status)  # before the first evaluation (seconds to minutes): a run stopped during it says so
-    if step == 0 and not results[0].rows:
-        log_eval(0.0)
-
-    rate, t_mark, s_mark = 0.0, time.perf_counter(), step
-    wall0, t_start, t_last_report = wall, t_mark, t_mark
-    while step < spec.steps:
-        inter.step(algo, step + 1)
-        step += 1
-        if step % spec.log_every == 0 or step == spec.steps:
-            log_train()
-        if step % spec.eval_every == 0 or step == spec.steps:
-            now = time.perf_counter()
-            rate = (step - s_mark) / max(now - t_mark, 1e-9)  # training steps/s, evaluation excluded
-            wall = wall0 + now - t_start
-            log_eval(rate)
-            if step % spec.checkpoint_every == 0 or step == spec.steps:
-                checkpoint()
-            t_mark, s_mark = time.perf_counter(), step
-            if should_stop and should_stop():
-                return results
-        elif step % 1000 == 0 and on_progress and time.perf_counter() - t_last_report > 10:
-            t_last_report = time.perf_counter()
-            rate = (step - s_mark) / max(t_last_report - t_mark, 1e-9)
-            on_progress(Progress(step, spec.steps, rate, (spec.steps - step) / max(rate, 1e-9), list(last_success)))
-    for d, succ in zip(dirs, last_success):
-        write_status(d, state="done", step=step, total=spec.steps, steps_per_s=rate, eta_s=0.0, last_success=succ)
-    return results
+    def run(self, should_stop: Callable[[], bool] | None) -> list[RunResults]:
+        spec = self.spec
+        self.report(0.0, self.status)  # before the first evaluation (seconds to minutes): a stopped run says so
+        if self.step == 0 and not self.results[0].rows:
+            self.log_eval(0.0)
+        rate, t_mark, s_mark = 0.0, time.perf_counter(), self.step
+        wall0, t_start, t_last_report = self.wall, t_mark, t_mark
+        while self.step < spec.steps:
+            self.inter.step(self.algo, self.step + 1)
+            self.step += 1
+            if self.log_due(self.step):
+                self.log_train()
+            if self.eval_due(self.step):
+                now = time.perf_counter()
+                rate = (self.step - s_mark) / max(now - t_mark, 1e-9)  # training steps/s, evaluation excluded
+                self.wall = wall0 + now - t_start
+                self.log_eval(rate)
+                if self.checkpoint_due(self.step):
+                    self.checkpoint()
+                t_mark, s_mark = time.perf_counter(), self.step
+                if should_stop and should_stop():
+                    return self.results
+            elif self.step % 1000 == 0 and self.on_progress and time.perf_counter() - t_last_report > 10:
+                t_last_report = time.perf_counter()
+                rate = (self.step - s_mark) / max(t_last_report - t_mark, 1e-9)
+                self.on_progress(Progress(self.step, spec.steps, rate, (spec.steps - self.step) / max(rate, 1e-9),
+                                          list(self.last_success)))
+        for d, succ in zip(self.dirs, self.last_success):
+            write_status(d, state="done", step=self.step, total=spec.steps, steps_per_s=rate, eta_s=0.0,
+                         last_success=succ)
+        return self.results
