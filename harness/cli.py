@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from harness import command_keys as keys
 from harness import data as data_mod
@@ -161,11 +162,14 @@ def cmd_tune(args) -> int:
     return tune_cli(args.overrides, best=args.best)
 
 
-def keys_help(table: dict[str, tuple[str, str]], algorithm_settings: bool = True) -> str:
-    """The epilog of ``run``/``tune --help``: every key=value word with its default and meaning, then every
-    algorithm setting (the shared SAC ones once, then each algorithm's own)."""
+def keys_help(table: dict[str, Any], algorithm_settings: bool = True) -> str:
+    """The epilog of ``run``/``tune --help``: every key=value word with its default and meaning (a table of
+    :class:`harness.request.Key`, or of (default, meaning) pairs), then every algorithm setting (the shared SAC ones
+    once, then each algorithm's own)."""
     lines = ["keys (key=value, in any order, flags anywhere):"]
-    lines += [f"  {k:<18} {meaning} [default: {default}]" for k, (default, meaning) in table.items()]
+    for k, v in table.items():
+        default, meaning = (v.default_text, v.help) if hasattr(v, "default_text") else v
+        lines.append(f"  {k:<18} {meaning} [default: {default}]")
     if algorithm_settings:
         from algorithms.common import SACAlgoConfig
         from harness.registry import ALGORITHMS

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from harness.request import RUN_KEYS
 from harness.results import checkpoint_path, run_dir
 
 
@@ -24,13 +25,13 @@ class RunSpec:
     algo: str  # the method's name in results (a suite cell's variant name, else the algorithm)
     seeds: tuple[int, ...]
     steps: int
-    eval_every: int = 10_000
-    eval_episodes: int = 10
-    checkpoint_every: int = 50_000
-    keep_every: int = 0  # > 0: checkpoints at multiples of it are also kept as checkpoint-<step>.pt
-    log_every: int = 1000  # training diagnostics (Algorithm.metrics) into train.parquet; divides eval_every
-    device: str = "cpu"
-    results: str = "results"
+    eval_every: int = RUN_KEYS["eval_every"].default
+    eval_episodes: int = RUN_KEYS["eval_episodes"].default
+    checkpoint_every: int = RUN_KEYS["checkpoint_every"].default
+    keep_every: int = RUN_KEYS["keep_every"].default  # > 0: checkpoints at multiples of it are also kept
+    log_every: int = RUN_KEYS["log_every"].default  # training diagnostics into train.parquet; divides eval_every
+    device: str = RUN_KEYS["device"].default
+    results: str = RUN_KEYS["results"].default
     algo_class: str = ""  # the registry key of the algorithm ("" = algo)
     config: dict[str, Any] = field(default_factory=dict)  # the resolved algorithm config, plain values
     config_hash: str = ""
@@ -40,7 +41,7 @@ class RunSpec:
     trial: int | None = None
     env_workers: int = 0  # > 1: the member envs stepped in that many worker processes (harness.env_pool)
     tensorboard: bool = False  # logger=tensorboard: the rows also as TensorBoard events (harness.tensorboard)
-    update: str = "default"  # SAC updates: default, static or compiled (algorithms.core.sac.SAC.use_static_update)
+    update: str = RUN_KEYS["update"].default  # SAC updates: one of algorithms.core.sac.UPDATES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))

@@ -20,9 +20,7 @@ from harness.request import (
     BACKENDS,
     DEFAULT_STEPS,
     LOGGERS,
-    MAX_EPISODES,
-    MAX_MEMBERS,
-    MAX_STEPS,
+    RUN_KEYS,
     RunRequest,
     parse_seeds,
 )
@@ -35,7 +33,6 @@ from harness.suites import (
     load_suite,
     resolve_algo_config,
 )
-from harness.words import integer as _int
 from harness.words import names
 
 
@@ -74,16 +71,16 @@ def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     envs = list(req.envs) or names("env", suite.get("envs") or [])
     _check_envs_algos(envs, algos)
     seeds = list(req.seeds) if req.seeds is not None else parse_seeds(suite.get("seeds", 1))
-    members = _int("members", suite["members"], 1, MAX_MEMBERS) if "members" in suite else None
+    members = RUN_KEYS["members"].parse("members", suite["members"]) if "members" in suite else None
     steps_cfg = req.steps if req.steps is not None else suite.get("steps", DEFAULT_STEPS)
     units = []
     for env in envs:
         if isinstance(steps_cfg, dict):
             if env not in steps_cfg:
                 raise ConfigError(f"suite gives no step budget for env {env!r}")
-            steps = _int(f"steps[{env}]", steps_cfg[env], 1, MAX_STEPS)
+            steps = RUN_KEYS["steps"].parse(f"steps[{env}]", steps_cfg[env])
         else:
-            steps = _int("steps", steps_cfg, 1, MAX_STEPS)
+            steps = RUN_KEYS["steps"].parse("steps", steps_cfg)
         units += [Unit(env, a, a, steps, seeds, members, {}) for a in algos]
     return units
 
@@ -122,9 +119,9 @@ def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
                 pick_envs and env not in pick_envs):
             continue
         seeds = list(req.seeds) if req.seeds is not None else parse_seeds(c.get("seeds", suite.get("seeds", 1)))
-        steps = req.steps if req.steps is not None else _int(f"steps of {where}", c["steps"], 1, MAX_STEPS)
+        steps = req.steps if req.steps is not None else RUN_KEYS["steps"].parse(f"steps of {where}", c["steps"])
         given = c.get("members", suite.get("members"))
-        members = None if given is None else _int(f"members of {where}", given, 1, MAX_MEMBERS)
+        members = None if given is None else RUN_KEYS["members"].parse(f"members of {where}", given)
         units.append(Unit(env, name, algo, steps, seeds, members, dict(config), cpu_members=len(seeds)))
     if not units:
         raise ConfigError(f"no cell of the suite matches algo={','.join(sorted(req.algos)) or '*'} "
@@ -189,23 +186,25 @@ def build_plan(req: RunRequest) -> Plan:
     if req.study is not None:
         suite_name = f"tune_{req.study}"
 
-    def value(key: str, default: int, hi: int) -> int:
+    def value(key: str, default: int | None = None) -> int:
+        """The command's value of an integer key, else the suite's, else ``default`` (the key's own by default)."""
         given = getattr(req, key)
-        return _int(key, given if given is not None else suite.get(key, default), 1, hi)
+        fallback = RUN_KEYS[key].default if default is None else default
+        return RUN_KEYS[key].parse(key, given if given is not None else suite.get(key, fallback))
 
-    eval_every, eval_episodes = value("eval_every", 10_000, MAX_STEPS), value("eval_episodes", 10, MAX_EPISODES)
+    eval_every, eval_episodes = value("eval_every"), value("eval_episodes")
     # defaults follow the user's eval_every, so that no key the user never set can reject what they did set: a
     # checkpoint at the first evaluation from 50k on, a diagnostics row at the largest divisor of eval_every <= 1000
-    ckpt = value("checkpoint_every", -(-50_000 // eval_every) * eval_every, MAX_STEPS)
+    ckpt = value("checkpoint_every", -(-RUN_KEYS["checkpoint_every"].default // eval_every) * eval_every)
     if ckpt % eval_every:
         raise ConfigError(f"checkpoint_every ({ckpt}) must be a multiple of eval_every ({eval_every})")
-    keep = _int("keep_every", req.keep_every if req.keep_every is not None else suite.get("keep_every", 0), 0,
-                MAX_STEPS)
+    keep = value("keep_every")
     if keep % ckpt:
         raise ConfigError(f"keep_every ({keep}) must be a multiple of checkpoint_every ({ckpt})")
-    divisor = next(d for d in range(min(1000, eval_every), 0, -1) if eval_every % d == 0)
+    most = RUN_KEYS["log_every"].default
+    divisor = next(d for d in range(min(most, eval_every), 0, -1) if eval_every % d == 0)
     # a row every eval_every steps where eval_every has no divisor from 100 to 1000 (a prime above 1000, say)
-    log_every = value("log_every", divisor if divisor >= min(100, eval_every) else eval_every, MAX_STEPS)
+    log_every = value("log_every", divisor if divisor >= min(100, eval_every) else eval_every)
     if eval_every % log_every:
         raise ConfigError(f"log_every ({log_every}) must divide eval_every ({eval_every})")
     suite_cfg = suite.get("config") or {}

@@ -22,41 +22,69 @@ from harness.envs import ENVS
 from harness.words import ConfigError, boolean, names, parse_words
 from harness.words import integer as _int
 
-#: every key=value word of ``harness run``: (default, meaning); ``harness run --help`` prints this table
-RUN_KEYS: dict[str, tuple[str, str]] = {
-    "suite": ("-", "a suite in suites/ or a path to a suite YAML (its name names the results directory)"),
-    "algo": ("-", "algorithm(s), comma-separated (ad hoc; with a suite of cells: selects cells)"),
-    "algos": ("-", "same as algo"),
-    "env": ("-", f"env(s), comma-separated: {', '.join(ENVS)}"),
-    "envs": ("-", "same as env"),
-    "seeds": ("1", "a count (seeds 0..n-1) or a comma list of distinct seeds (one seed: 7, or [7])"),
-    "steps": ("/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env", "training steps per run"),
-    "eval_every": ("10000", "steps between deployed-policy evaluations"),
-    "eval_episodes": ("10", "episodes per evaluation"),
-    "checkpoint_every": ("50000", "steps between checkpoints (a multiple of eval_every; by default the first one from "
-                                  "50000 on)"),
-    "keep_every": ("0", "also keep the checkpoints at multiples of it (checkpoint-<step>.pt; each a full checkpoint)"),
-    "log_every": ("1000", "steps between training-diagnostics rows in train.parquet (divides eval_every; default: the "
-                          "largest divisor of eval_every up to 1000)"),
-    "members": ("1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)", "seeds trained in lockstep by one process"),
-    "workers": ("cores (cuda: what the GPUs' memory and the cores hold)", "processes running groups in parallel"),
-    "device": ("cpu", "torch device, e.g. cpu or cuda:0"),
-    "results": ("results", "results directory"),
-    "backend": ("local", "local (a process pool) or ray (one Ray task per group)"),
-    "ray_address": ("start one", "Ray cluster to join (auto or HOST:PORT), with backend=ray"),
-    "env_workers": ("0 (cuda: spare cores)", "worker processes stepping the member envs of each group (0: in the group's process; "
-                         "for many seeds per process, e.g. on a GPU)"),
-    "update": ("default; a run resuming from its checkpoint: the mode it last ran with",
-               "SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed runs), "
-               "static (one fixed kernel sequence, equal within rounding), compiled (static + torch.compile; CUDA "
-               "graphs on a GPU); a run resumes bit for bit only in the mode it ran with"),
-    "logger": ("parquet", "parquet, or tensorboard: the same rows also as TensorBoard events in each run's "
-                          "tensorboard/ directory (pip install tensorboard)"),
-    "calibrate": ("true", "with --dry-run: measure the speed of each kind of group not measured yet on this machine "
-                          "(seconds each, cached) for the time estimate"),
-}
 #: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
 MAX_STEPS, MAX_SEEDS, MAX_SEED, MAX_MEMBERS, MAX_EPISODES, MAX_WORKERS = 10**9, 1000, 2**31 - 1, 1024, 10_000, 1024
+
+
+@dataclass(frozen=True)
+class Key:
+    """One ``key=value`` word, declared once: its meaning, its default (what planning and :class:`RunSpec` use when
+    neither the command nor the suite gives one; None where it is computed or has none), the bounds of an integer
+    key, and ``shown``, how ``--help`` states a default that is computed."""
+
+    help: str
+    default: Any = None
+    lo: int | None = None  # integer keys: the accepted range
+    hi: int | None = None
+    shown: str | None = None
+
+    @property
+    def default_text(self) -> str:
+        return self.shown if self.shown is not None else "-" if self.default is None else str(self.default)
+
+    def parse(self, name: str, value: Any) -> int:
+        """An integer key's value, checked against its bounds (one line naming the key otherwise)."""
+        return _int(name, value, self.lo if self.lo is not None else 0, self.hi)
+
+
+#: every key=value word of ``harness run``; ``harness run --help`` prints this table, planning reads the defaults
+RUN_KEYS: dict[str, Key] = {
+    "suite": Key("a suite in suites/ or a path to a suite YAML (its name names the results directory)"),
+    "algo": Key("algorithm(s), comma-separated (ad hoc; with a suite of cells: selects cells)"),
+    "algos": Key("same as algo"),
+    "env": Key(f"env(s), comma-separated: {', '.join(ENVS)}"),
+    "envs": Key("same as env"),
+    "seeds": Key("a count (seeds 0..n-1) or a comma list of distinct seeds (one seed: 7, or [7])", 1),
+    "steps": Key("training steps per run", None, 1, MAX_STEPS,
+                 shown="/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env"),
+    "eval_every": Key("steps between deployed-policy evaluations", 10_000, 1, MAX_STEPS),
+    "eval_episodes": Key("episodes per evaluation", 10, 1, MAX_EPISODES),
+    "checkpoint_every": Key("steps between checkpoints (a multiple of eval_every)", 50_000, 1, MAX_STEPS,
+                            shown="the first multiple of eval_every from 50000 on"),
+    "keep_every": Key("also keep the checkpoints at multiples of it (checkpoint-<step>.pt; each a full checkpoint)", 0,
+                      0, MAX_STEPS),
+    "log_every": Key("steps between training-diagnostics rows in train.parquet (divides eval_every)", 1000, 1,
+                     MAX_STEPS, shown="the largest divisor of eval_every up to 1000"),
+    "members": Key("seeds trained in lockstep by one process", None, 1, MAX_MEMBERS,
+                   shown="1 (cells: the cell's seeds; cuda: a cell's seeds, <= 128)"),
+    "workers": Key("processes running groups in parallel", None, 1, MAX_WORKERS,
+                   shown="cores (cuda: what the GPUs' memory and the cores hold)"),
+    "device": Key("torch device, e.g. cpu or cuda:0", "cpu"),
+    "results": Key("results directory", "results"),
+    "backend": Key("local (a process pool) or ray (one Ray task per group)", "local"),
+    "ray_address": Key("Ray cluster to join (auto or HOST:PORT), with backend=ray", shown="start one"),
+    "env_workers": Key("worker processes stepping the member envs of each group (0: in the group's process; for many "
+                       "seeds per process, e.g. on a GPU)", None, 0, MAX_WORKERS, shown="0 (cuda: spare cores)"),
+    "update": Key("SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed runs), "
+                  "static (one fixed kernel sequence, equal within rounding), compiled (static + torch.compile; CUDA "
+                  "graphs on a GPU), autograd (the same losses through torch.autograd); a run resumes bit for bit only "
+                  "in the mode it ran with", "default",
+                  shown="default; a run resuming from its checkpoint: the mode it last ran with"),
+    "logger": Key("parquet, or tensorboard: the same rows also as TensorBoard events in each run's tensorboard/ "
+                  "directory (pip install tensorboard)", "parquet"),
+    "calibrate": Key("with --dry-run: measure the speed of each kind of group not measured yet on this machine "
+                     "(seconds each, cached) for the time estimate", "true"),
+}
 BACKENDS = ("local", "ray")
 LOGGERS = ("parquet", "tensorboard")
 DEFAULT_STEPS = {name: e.default_steps for name, e in ENVS.items()}  # each env's EnvInfo.default_steps
@@ -113,12 +141,12 @@ class RunRequest:
     log_every: int | None = None
     members: int | None = None
     workers: int | None = None
-    device: str = "cpu"
-    results: str = "results"
-    backend: str = "local"
+    device: str = RUN_KEYS["device"].default
+    results: str = RUN_KEYS["results"].default
+    backend: str = RUN_KEYS["backend"].default
     ray_address: str | None = None
     calibrate: bool = True
-    logger: str = "parquet"
+    logger: str = RUN_KEYS["logger"].default
     env_workers: int | None = None
     update: str | None = None  # None: the mode the runs last ran with (resumed_update), else default
     config: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -140,17 +168,20 @@ class RunRequest:
         for a, b in (("algo", "algos"), ("env", "envs")):
             if a in ov and b in ov:
                 raise ConfigError(f"give {a}= or {b}=, not both")
-        backend = ov.get("backend", "local")
+        def given(key: str) -> Any:
+            return ov.get(key, RUN_KEYS[key].default)
+
+        backend = given("backend")
         if backend not in BACKENDS:
             raise ConfigError(f"unknown backend {backend!r}; known backends: {', '.join(BACKENDS)}")
         if "ray_address" in ov and backend != "ray":
             raise ConfigError("ray_address is only used with backend=ray")
-        device = check_device(ov.get("device", "cpu"), local=not (backend == "ray" and ov.get("ray_address")))
+        device = check_device(given("device"), local=not (backend == "ray" and ov.get("ray_address")))
 
         update = ov.get("update")
         if update is not None and update not in UPDATES:
             raise ConfigError(f"unknown update {update!r}; known: {', '.join(UPDATES)}")
-        logger = ov.get("logger", "parquet")
+        logger = given("logger")
         if logger not in LOGGERS:
             raise ConfigError(f"unknown logger {logger!r}; known: {', '.join(LOGGERS)}")
         if logger == "tensorboard":
@@ -158,8 +189,8 @@ class RunRequest:
 
             check_available()
 
-        def opt(key: str, lo: int, hi: int) -> int | None:
-            return _int(key, ov[key], lo, hi) if key in ov else None
+        def opt(key: str) -> int | None:
+            return RUN_KEYS[key].parse(key, ov[key]) if key in ov else None
 
         for key in ("results", "suite", "device", "backend"):
             if key in ov and not str(ov[key]).strip():
@@ -167,12 +198,10 @@ class RunRequest:
         return cls(
             suite=ov.get("suite"), algos=tuple(names("algo", ov.get("algos") or ov.get("algo") or [])),
             envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
-            seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps", 1, MAX_STEPS),
-            eval_every=opt("eval_every", 1, MAX_STEPS), eval_episodes=opt("eval_episodes", 1, MAX_EPISODES),
-            checkpoint_every=opt("checkpoint_every", 1, MAX_STEPS),
-            keep_every=opt("keep_every", 0, MAX_STEPS), log_every=opt("log_every", 1, MAX_STEPS),
-            members=opt("members", 1, MAX_MEMBERS), workers=opt("workers", 1, MAX_WORKERS), device=device,
-            results=ov.get("results", "results"), backend=backend, ray_address=ov.get("ray_address"),
-            calibrate=boolean("calibrate", ov.get("calibrate", "true")), logger=logger, config=config,
-            env_workers=opt("env_workers", 0, MAX_WORKERS), update=update,
+            seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps"),
+            eval_every=opt("eval_every"), eval_episodes=opt("eval_episodes"), checkpoint_every=opt("checkpoint_every"),
+            keep_every=opt("keep_every"), log_every=opt("log_every"), members=opt("members"), workers=opt("workers"),
+            device=device, results=given("results"), backend=backend, ray_address=ov.get("ray_address"),
+            calibrate=boolean("calibrate", given("calibrate")), logger=logger,
+            config=config, env_workers=opt("env_workers"), update=update,
         )

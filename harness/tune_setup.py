@@ -6,41 +6,39 @@ import re
 import shlex
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import yaml
 
+from harness.request import RUN_KEYS, RunRequest
 from harness.suites import SUITES_DIR, ConfigError
 from harness.words import integer as parse_int
 from harness.words import parse_words
 
-if TYPE_CHECKING:
-    from harness.request import RunRequest
-
-
-#: every key=value word of ``harness tune``: (default, meaning); ``harness tune --help`` prints this table
-TUNE_KEY_HELP: dict[str, tuple[str, str]] = {
+#: every key=value word of ``harness tune``: a :class:`~harness.request.Key` (those it shares with ``harness run`` are
+#: the run's own) or (default, meaning); ``harness tune --help`` prints this table
+TUNE_KEY_HELP: dict[str, Any] = {
     "algo": ("-", "the algorithm to tune (its search space: suites/algorithms/<algo>_search.yaml)"),
     "env": ("-", "the env"),
     "trials": ("-", "finished trials (complete or pruned) the study should reach"),
     "study": ("<algo>_<env>", "study name"),
     "storage": ("<results>/tuning/<study>.journal", "journal file path or RDB URL (postgresql://..., sqlite:///...)"),
-    "steps": ("the env's default", "training steps per trial"),
+    "steps": RUN_KEYS["steps"],
     "seeds": ("1", "seeds per trial (trained as members of one process)"),
     "workers": ("1", "worker processes (or Ray tasks) on the same study"),
     "pruner": ("median", "median, hyperband or none"),
     "sampler": ("tpe", "tpe or random"),
     "seed": ("none", "sampler seed"),
-    "results": ("results", "results directory"),
-    "backend": ("local", "local or ray"),
-    "ray_address": ("start one", "Ray cluster to join, with backend=ray"),
+    "results": RUN_KEYS["results"],
+    "backend": RUN_KEYS["backend"],
+    "ray_address": RUN_KEYS["ray_address"],
     "search": ("suites/algorithms/<algo>_search.yaml", "search space file"),
     "heartbeat_interval": ("60", "RDB storage: seconds between trial heartbeats"),
     "grace_period": ("optuna's", "RDB storage: seconds before a silent trial counts as dead"),
-    "eval_every": ("10000", "steps between evaluations"),
-    "eval_episodes": ("10", "episodes per evaluation"),
-    "checkpoint_every": ("50000", "steps between checkpoints"),
-    "device": ("cpu", "torch device"),
+    "eval_every": RUN_KEYS["eval_every"],
+    "eval_episodes": RUN_KEYS["eval_episodes"],
+    "checkpoint_every": RUN_KEYS["checkpoint_every"],
+    "device": RUN_KEYS["device"],
 }
 
 
@@ -99,12 +97,12 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
     from harness.planning import build_plan
     from harness.registry import ALGORITHMS
-    from harness.request import MAX_EPISODES, MAX_STEPS, RunRequest, check_device, parse_seeds
+    from harness.request import check_device, parse_seeds
 
     ov, fixed_config = parse_words(words, TUNE_KEYS, scope=lambda s: True)
 
-    def optional(key: str, maximum: int) -> int | None:
-        return parse_int(key, ov[key], 1, maximum) if key in ov else None
+    def optional(key: str) -> int | None:
+        return RUN_KEYS[key].parse(key, ov[key]) if key in ov else None
 
     algo = ov.get("algo", "medal")
     if algo not in ALGORITHMS:
@@ -157,9 +155,9 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     ray_cluster = setup["backend"] == "ray" and setup["ray_address"]
     base = RunRequest(
         algos=(algo,), envs=(env,), seeds=tuple(seed_list), members=len(seed_list), workers=1,
-        steps=optional("steps", MAX_STEPS), eval_every=optional("eval_every", MAX_STEPS),
-        eval_episodes=optional("eval_episodes", MAX_EPISODES), checkpoint_every=optional("checkpoint_every", MAX_STEPS),
-        device=check_device(ov.get("device", "cpu"), local=not ray_cluster),
+        steps=optional("steps"), eval_every=optional("eval_every"), eval_episodes=optional("eval_episodes"),
+        checkpoint_every=optional("checkpoint_every"),
+        device=check_device(ov.get("device", RUN_KEYS["device"].default), local=not ray_cluster),
         backend="ray" if ray_cluster else "local", ray_address=setup["ray_address"] if ray_cluster else None,
         config=fixed_config, study=study,
     )
