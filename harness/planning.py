@@ -266,7 +266,7 @@ def plan_words(words: list[str]) -> Plan:
 def only_gained_keys(old: dict[str, Any], new: dict[str, Any]) -> bool:
     """True when ``new`` keeps every key of ``old`` with the same value and only adds keys.
 
-    Project rule (README, Results): a config key added to an algorithm defaults to the behaviour the code had
+    Project rule (docs/running.md, Results): a config key added to an algorithm defaults to the behaviour the code had
     before it existed, so a run started before the key was added resumes under the new code unchanged."""
     return all(k in new and new[k] == v for k, v in old.items())
 

@@ -3,7 +3,7 @@
 What is compared, and why not bitwise: parameters are initialised on the CPU from per-member generators and then
 moved, so both devices start from identical networks; CUDA generators (Philox) and CPU ones (mt19937) give different
 noise, and GPU matrix products round differently, so training on the two devices agrees in distribution (learning
-curves within seed noise, shown by the measured comparison in the README), not in bits. Within one device everything
+curves within seed noise, shown by the measured comparison in docs/performance.md), not in bits. Within one device everything
 is exact: a CUDA run resumed from its checkpoint equals the uninterrupted CUDA run.
 """
 
