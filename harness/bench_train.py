@@ -15,7 +15,8 @@ import time
 import torch
 
 from algorithms.api import DemoSet
-from algorithms.core.sac import UPDATES, set_update_mode
+from algorithms.core.sac import set_update_mode
+from algorithms.update_modes import UPDATES
 from harness.backends import use_allocator
 from harness.command_keys import BENCH
 from harness.envs import check_env, get_spec, load_env_demos

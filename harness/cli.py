@@ -39,13 +39,12 @@ def _csv(v: str | None) -> list[str] | None:
 
 
 def cmd_list(args) -> int:
+    from harness.catalogue import algorithm_summaries
     from harness.envs import ENVS, UNAVAILABLE_ENVS
-    from harness.registry import ALGORITHMS
     from harness.suites import list_suites, load_suite
 
     print("algorithms:")
-    for name, cls in ALGORITHMS.items():
-        doc = (cls.__doc__ or "").strip().splitlines()[0]
+    for name, doc in algorithm_summaries().items():
         print(f"  {name:<14} {doc}")
     print("envs:")
     for name, info in ENVS.items():
@@ -189,7 +188,13 @@ def keys_help(table: dict[str, Any], algorithm_settings: bool = True) -> str:
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse with the harness's error format: one line on stderr, exit code 2."""
+    """argparse with the harness's error format: one line on stderr, exit code 2. ``epilog`` may be a function, called
+    when the help is printed (the run and tune epilogs list every algorithm's settings, which imports torch)."""
+
+    def format_help(self) -> str:
+        if callable(self.epilog):
+            self.epilog = self.epilog()
+        return super().format_help()
 
     def error(self, message: str):
         print(f"harness: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
@@ -202,18 +207,25 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=Parser)
     sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
 
-    from harness.request import RUN_KEYS
-    from harness.tune_setup import TUNE_KEY_HELP
+    def run_help() -> str:
+        from harness.request import RUN_KEYS
+
+        return keys_help(RUN_KEYS)
+
+    def tune_help() -> str:
+        from harness.tune_setup import TUNE_KEY_HELP
+
+        return keys_help(TUNE_KEY_HELP)
 
     raw = argparse.RawDescriptionHelpFormatter
     r = sub.add_parser("run", help="run a suite or an ad-hoc set of runs (key=value overrides)",
-                       epilog=keys_help(RUN_KEYS), formatter_class=raw)
+                       epilog=run_help, formatter_class=raw)
     r.add_argument("overrides", nargs="*")
     r.add_argument("--dry-run", action="store_true", help="print the plan and exit")
     r.set_defaults(fn=cmd_run)
 
     t = sub.add_parser("tune", help="tune an algorithm's hyperparameters with Optuna (key=value overrides)",
-                       epilog=keys_help(TUNE_KEY_HELP), formatter_class=raw)
+                       epilog=tune_help, formatter_class=raw)
     t.add_argument("overrides", nargs="*")
     t.add_argument("--best", action="store_true", help="print the study's best parameters as a YAML override")
     t.set_defaults(fn=cmd_tune)
@@ -286,6 +298,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("harness: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # the reader went away (harness list | head): nothing more to say
+        sys.stderr.close()
+        return 0
     finally:
         data_mod.set_data_dir(previous)  # main() called in-process (tests, notebooks) leaves no global behind
 

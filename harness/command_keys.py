@@ -5,7 +5,7 @@ every subcommand's help on each call, so this module imports nothing the CLI doe
 
 from __future__ import annotations
 
-from algorithms.core.sac import UPDATES
+from algorithms.update_modes import UPDATES
 
 KeyHelp = dict[str, tuple[str, str]]
 

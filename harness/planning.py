@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from algorithms.core.sac import UPDATES
+from algorithms.update_modes import UPDATES
 from harness.envs import UnknownEnvError, check_env, env_info, load_env_demos
 from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec

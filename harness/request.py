@@ -15,9 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-import torch
-
-from algorithms.core.sac import UPDATES
+from algorithms.update_modes import UPDATES
 from harness.envs import ENVS
 from harness.words import ConfigError, boolean, names, parse_words
 from harness.words import integer as _int
@@ -113,6 +111,8 @@ def parse_seeds(v: Any) -> list[int]:
 def check_device(v: str, local: bool = True) -> str:
     """A torch device name; with ``local``, CUDA must be available here (a Ray cluster's GPUs need not be visible
     from the driver)."""
+    import torch  # here, not at the top: the command line loads this module for --help and answers at once
+
     try:
         dev = torch.device(v)
     except RuntimeError:

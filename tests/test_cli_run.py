@@ -346,3 +346,23 @@ def test_defaults_follow_the_users_eval_every(tmp_path):
     assert (s.eval_every, s.checkpoint_every, s.log_every) == (10_000, 50_000, 1000)
     with pytest.raises(Exception, match="must divide"):  # a value the user gave is still checked
         spec("eval_every=2500", "log_every=1000")
+
+
+def test_list_reads_the_registry_without_importing_it():
+    """``harness list`` names every registered algorithm with its class's first docstring line, read from the source
+    (harness.catalogue), so the answer needs no torch."""
+    from harness.catalogue import algorithm_summaries
+    from harness.registry import ALGORITHMS
+
+    assert algorithm_summaries() == {n: (c.__doc__ or "").strip().splitlines()[0] for n, c in ALGORITHMS.items()}
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["list"], ["run", "--bad-flag"], ["bench", "--help"], ["data", "--help"]])
+def test_quick_answers_never_load_torch(argv):
+    """The first commands a new user types answer without importing torch (seconds on a loaded machine)."""
+    code = ("import contextlib, io, sys\nfrom harness.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
+            f"    try:\n        main({argv!r})\n    except SystemExit:\n        pass\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"

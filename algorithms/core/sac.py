@@ -17,6 +17,7 @@ import torch
 from torch import nn
 
 from algorithms.api import setting
+from algorithms.update_modes import UPDATES
 
 from . import manual
 from .losses import (
@@ -360,9 +361,6 @@ class SAC:
         load_generator_states(self.update_generators, state["update_generators"])
 
 
-#: how SAC updates run: default (per-member optimizer kernels), static (SAC.use_static_update), compiled (+ torch.compile),
-#: autograd (SAC.use_autograd_update: the losses through torch.autograd)
-UPDATES = ("default", "static", "compiled", "autograd")
 
 
 def use_static_updates(algo, compile: bool = False) -> int:

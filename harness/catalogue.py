@@ -1,0 +1,27 @@
+"""What ``harness list`` says about the algorithms, read from the source: the registry's names
+(``harness/registry.py``'s ``ALGORITHMS``) and the first line of each class's docstring, found with :mod:`ast` without
+importing the algorithms (and torch), so the answer comes at once. ``tests/test_cli_run.py`` checks it against the
+imported registry."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def algorithm_summaries() -> dict[str, str]:
+    """Registry name -> the first line of its class's docstring, in the registry's order."""
+    tree = ast.parse((ROOT / "harness" / "registry.py").read_text())
+    module_of = {a.asname or a.name: node.module for node in tree.body if isinstance(node, ast.ImportFrom)
+                 for a in node.names}
+    table = next(node.value for node in tree.body if isinstance(node, ast.AnnAssign)
+                 and isinstance(node.target, ast.Name) and node.target.id == "ALGORITHMS")
+    out: dict[str, str] = {}
+    for key, value in zip(table.keys, table.values):
+        cls = value.id
+        source = ROOT / Path(*module_of[cls].split(".")).with_suffix(".py")
+        node = next(n for n in ast.parse(source.read_text()).body if isinstance(n, ast.ClassDef) and n.name == cls)
+        out[key.value] = (ast.get_docstring(node) or "").strip().splitlines()[0]
+    return out
