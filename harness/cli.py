@@ -96,7 +96,7 @@ def cmd_data(args) -> int:
 
 def cmd_bench(args) -> int:
     if args.what == "env":
-        from harness.bench import bench_env
+        from harness.bench.env import bench_env
         from harness.envs import check_env
 
         ov = parse_overrides(args.overrides, {"env", *keys.BENCH["env"]})
@@ -107,22 +107,22 @@ def cmd_bench(args) -> int:
         bench_env(envs, steps, optional_integer("repeats", ov.get("repeats"), 5, 1))
         return 0
     if args.what == "train":
-        from harness.bench_train import bench_train_cli
+        from harness.bench.train import bench_train_cli
 
         return bench_train_cli(parse_overrides(args.overrides))
     if args.what == "update":
-        from harness.bench_update import bench_update_cli
+        from harness.bench.update import bench_update_cli
 
         return bench_update_cli(parse_overrides(args.overrides))
     if args.what == "matmul":
-        from harness.bench import bench_matmul
+        from harness.bench.env import bench_matmul
 
         ov = parse_overrides(args.overrides, set(keys.BENCH["matmul"]))
         bench_matmul(optional_integer("members", ov.get("members"), 2, 1),
                      optional_integer("repeats", ov.get("repeats"), 5, 1))
         return 0
     if args.what == "app":
-        from harness.bench_app import bench_app_cli
+        from harness.bench.app import bench_app_cli
 
         return bench_app_cli(parse_overrides(args.overrides, set(keys.BENCH["app"])))
     raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, update, matmul, app")
@@ -156,7 +156,7 @@ def cmd_ship(args) -> int:
 
 
 def cmd_tune(args) -> int:
-    from harness.tune import tune_cli
+    from harness.tune.command import tune_cli
 
     return tune_cli(args.overrides, best=args.best)
 
@@ -213,7 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
         return keys_help(RUN_KEYS)
 
     def tune_help() -> str:
-        from harness.tune_setup import TUNE_KEY_HELP
+        from harness.tune.setup import TUNE_KEY_HELP
 
         return keys_help(TUNE_KEY_HELP)
 

@@ -93,7 +93,7 @@ TUNE_STUDY = "medal_sawyer_door"
 
 
 def write_tuning(root: Path) -> Path | None:
-    """One ``harness tune`` trial run (as harness/tune.py lays it out: suite ``tune_<study>``,
+    """One ``harness tune`` trial run (as harness/tune/ lays it out: suite ``tune_<study>``,
     ``study``/``trial`` metadata) and, when optuna is installed, the study's journal."""
     d = run_dir(Path(root) / "tuning" / TUNE_STUDY / "trial=0", f"tune_{TUNE_STUDY}", "sawyer_door", "medal", 0)
     r = RunResults(d, {"suite": f"tune_{TUNE_STUDY}", "env": "sawyer_door", "algo": "medal", "seed": 0},

@@ -6,7 +6,7 @@ import torch
 
 from algorithms.core import SAC, SACConfig
 from harness.backends import keep_freed_memory, use_allocator
-from harness.bench_update import RECORD_HEADER, measure_update, record_row
+from harness.bench.update import RECORD_HEADER, measure_update, record_row
 from harness.words import ConfigError
 
 

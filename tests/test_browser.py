@@ -2,7 +2,7 @@
 
 Needs the ``playwright`` Python package and Debian's ``chromium`` (``apt-get install chromium``:
 /usr/bin/chromium, or ``HARNESS_CHROMIUM``); ``playwright install`` is not used. Skipped with the
-reason when either is missing. The helpers (``serve``, ``chromium``) live in ``harness.bench_app``;
+reason when either is missing. The helpers (``serve``, ``chromium``) live in ``harness.bench.app``;
 page-load time is measured by ``harness bench app``, not here. Saves screenshots to the test's tmp
 dir and once to /tmp/dashboard.png (learning curves) and /tmp/dashboard_table1.png.
 """
@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from harness.bench_app import VIEWPORT, bench_app, chromium, missing, serve
+from harness.bench.app import VIEWPORT, bench_app, chromium, missing, serve
 from tests.fixtures_results import write_fixture
 
 pytestmark = pytest.mark.skipif(missing() is not None, reason=missing() or "")

@@ -343,7 +343,7 @@ def test_explicit_data_dir_is_honoured(tmp_path, capsys, kind):
 # -- help -------------------------------------------------------------------------------------------------------------
 def test_help_lists_every_key_with_default(capsys):
     from harness.request import RUN_KEYS
-    from harness.tune_setup import TUNE_KEY_HELP
+    from harness.tune.setup import TUNE_KEY_HELP
 
     for cmd, keys in (("run", RUN_KEYS), ("tune", TUNE_KEY_HELP)):
         with pytest.raises(SystemExit):

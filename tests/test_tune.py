@@ -24,7 +24,7 @@ from .conftest import requires_data
 optuna = pytest.importorskip("optuna", reason="optuna is not installed (pip install -e '.[test]')")
 from optuna.trial import TrialState  # noqa: E402
 
-from harness.tune_setup import load_search_space  # noqa: E402
+from harness.tune.setup import load_search_space  # noqa: E402
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
 TINY = ["algo=medal", "env=tabletop_manipulation", "steps=300", "eval_every=100", "checkpoint_every=100",
@@ -169,7 +169,7 @@ def postgres():
 
 
 def rdb_study(url: str, name: str):
-    from harness.tune_studies import pg_driver as _pg_driver
+    from harness.tune.studies import pg_driver as _pg_driver
 
     return optuna.load_study(study_name=name, storage=_pg_driver(url))
 
@@ -219,7 +219,7 @@ def test_interrupted_retries_are_queued_once_down_a_chain_and_without_the_old_ma
     import optuna
     from optuna.trial import TrialState
 
-    from harness.tune_studies import retried_numbers, retry_interrupted_trials
+    from harness.tune.studies import retried_numbers, retry_interrupted_trials
 
     study = optuna.create_study(direction="maximize")
 

@@ -36,9 +36,9 @@ from typing import Any
 import yaml
 
 from harness.suites import ConfigError
-from harness.tune_setup import parse_setup
-from harness.tune_studies import fail_dead_local_trials, finished, make_storage, open_study, summary
-from harness.tune_trials import tune_worker
+from harness.tune.setup import parse_setup
+from harness.tune.studies import fail_dead_local_trials, finished, make_storage, open_study, summary
+from harness.tune.trials import tune_worker
 
 
 def _fmt(v: Any) -> str:

@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from harness.suites import ConfigError
-from harness.tune_setup import trial_request
-from harness.tune_studies import (
+from harness.tune.setup import trial_request
+from harness.tune.studies import (
     fail_dead_local_trials,
     finished,
     frozen_trial,

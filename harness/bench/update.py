@@ -29,7 +29,7 @@ from algorithms.api import DemoSet
 from algorithms.core.nets import member_matmul
 from algorithms.core.optim import MemberAdam
 from algorithms.core.sac import SAC
-from harness.bench_train import training_words
+from harness.bench.train import training_words
 from harness.envs import get_spec, load_env_demos
 from harness.registry import ALGORITHMS
 from harness.suites import resolve_algo_config
