@@ -111,6 +111,55 @@ def test_fuzz_bad_run_words(capsys, tmp_path_factory, words, flag_first):
     one_error_line(capsys, argv, res)
 
 
+@st.composite
+def valid_schedules(draw):
+    """Protocol words inside every declared bound (harness.request.RUN_KEYS) and every rule between them:
+    checkpoint_every a multiple of eval_every, keep_every of checkpoint_every, log_every a divisor of eval_every."""
+    from harness.request import RUN_KEYS
+
+    eval_every = draw(st.integers(1, 2_000_000))
+    divisors = [d for d in range(1, min(eval_every, 5000) + 1) if eval_every % d == 0]
+    ckpt = eval_every * draw(st.integers(1, max(1, RUN_KEYS["checkpoint_every"].hi // eval_every // 1000)))
+    words = {"eval_every": eval_every, "steps": draw(st.integers(1, RUN_KEYS["steps"].hi)),
+             "eval_episodes": draw(st.integers(1, RUN_KEYS["eval_episodes"].hi))}
+    if draw(st.booleans()):
+        words["checkpoint_every"] = ckpt
+        if draw(st.booleans()):
+            words["keep_every"] = ckpt * draw(st.integers(0, 100))
+    if draw(st.booleans()):
+        words["log_every"] = draw(st.sampled_from(divisors))
+    seeds = draw(st.integers(1, 64))
+    words["seeds"] = seeds
+    if draw(st.booleans()):
+        words["members"] = draw(st.integers(1, seeds))
+    style = draw(st.sampled_from(["plain", "underscores", "exponent"]))
+    def spell(v: int) -> str:  # noqa: E306 - the spellings the parser accepts for one integer
+        if style == "underscores":
+            return f"{v:_}"
+        if style == "exponent" and v % 1000 == 0 and v:
+            return f"{v // 1000}e3"
+        return str(v)
+    return [f"{k}={spell(v) if k != 'seeds' else v}" for k, v in words.items()]
+
+
+@requires_data
+@settings(max_examples=80, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(words=valid_schedules(), algo=st.sampled_from(sorted(ALGORITHMS)))
+def test_no_valid_schedule_is_refused(tmp_path_factory, words, algo):
+    """Generated commands inside the declared bounds always plan, and the plan holds what they asked for."""
+    from harness.planning import plan_words
+
+    res = tmp_path_factory.mktemp("r") / "results"
+    plan = plan_words([f"algo={algo}", "env=tabletop_manipulation", *words, f"results={res}"])
+    asked = dict(w.split("=", 1) for w in words)
+    g = plan.groups[0]
+    assert g.eval_every == int(float(asked["eval_every"].replace("_", "")))
+    assert sum(len(x.seeds) for x in plan.groups) == int(asked["seeds"])
+    assert g.checkpoint_every % g.eval_every == 0 and g.eval_every % g.log_every == 0
+    assert not res.exists() or not any(res.rglob("*"))  # planning writes nothing
+
+
 BAD_SUITES = [
     "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: 5}\n",
     "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: [1, 2]}\n",
