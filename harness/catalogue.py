@@ -1,4 +1,4 @@
-"""What ``harness list`` says about the algorithms, read from the source: the registry's names
+"""What ``harness list`` (and the first checks of a command's words) know about the algorithms, read from the source: the registry's names
 (``harness/registry.py``'s ``ALGORITHMS``) and the first line of each class's docstring, found with :mod:`ast` without
 importing the algorithms (and torch), so the answer comes at once. ``tests/test_cli_run.py`` checks it against the
 imported registry."""
@@ -9,6 +9,11 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def algorithm_names() -> tuple[str, ...]:
+    """The registry's algorithm names, in its order (for checking a command's words before anything heavy loads)."""
+    return tuple(algorithm_summaries())
 
 
 def algorithm_summaries() -> dict[str, str]:

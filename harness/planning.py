@@ -53,8 +53,9 @@ class Unit:
 
 
 def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
-    from harness.registry import ALGORITHMS
+    from harness.catalogue import algorithm_names  # the names only: a bad word is answered before torch loads
 
+    ALGORITHMS = algorithm_names()
     for e in envs:
         try:
             check_env(e)  # unknown, never released, or its optional simulator not installed: one line
@@ -171,8 +172,6 @@ def check_goal_shape(name: str, cls, env: str) -> None:
 def build_plan(req: RunRequest) -> Plan:
     """Resolve a request into run groups, checking everything (suite, algorithms, envs, configs, data, results
     directories); nothing is written. :func:`plan_words` does it for the words of a command."""
-    from harness.registry import ALGORITHMS
-
     if req.backend not in BACKENDS:
         raise ConfigError(f"unknown backend {req.backend!r}; known backends: {', '.join(BACKENDS)}")
     if req.logger not in LOGGERS:
@@ -212,6 +211,8 @@ def build_plan(req: RunRequest) -> Plan:
         raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
 
     units = (_cell_units if "cells" in suite else _product_units)(suite, req)
+    from harness.registry import ALGORITHMS  # after the names are checked: a bad word is answered before torch loads
+
     selected = {u.algo_class for u in units}
     stray = sorted(set(req.config) - selected - {"all"})
     if stray:

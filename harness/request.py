@@ -111,6 +111,8 @@ def parse_seeds(v: Any) -> list[int]:
 def check_device(v: str, local: bool = True) -> str:
     """A torch device name; with ``local``, CUDA must be available here (a Ray cluster's GPUs need not be visible
     from the driver)."""
+    if v == "cpu":  # the common case, answered without loading torch
+        return v
     import torch  # here, not at the top: the command line loads this module for --help and answers at once
 
     try:
@@ -156,8 +158,9 @@ class RunRequest:
     @classmethod
     def from_words(cls, words: list[str]) -> "RunRequest":
         """Parse and check the words of ``harness run`` (one line naming the first problem)."""
-        from harness.registry import ALGORITHMS
+        from harness.catalogue import algorithm_names  # the names only: a bad word is answered before torch loads
 
+        ALGORITHMS = algorithm_names()
         for w in words:  # name the unknown algorithm of an override, not just its scope
             if "=" not in w:
                 continue  # parse_words names it

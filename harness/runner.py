@@ -16,7 +16,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 import yaml
 
 from harness.backends import keep_freed_memory
@@ -33,6 +32,8 @@ def run_group(spec: RunSpec, command: str, queue=None, threads: int | None = Non
     process holds one, and :class:`~harness.interrupts.RunInterrupted` after SIGINT/SIGTERM stopped it (statuses
     ``interrupted``; the last checkpoint is the resume point). ``should_stop`` (no arguments, called after every
     evaluation) ends the run early (tuning's pruner)."""
+    import torch  # here: planning and its one-line errors come before torch loads
+
     from harness import interrupts
     from harness.interrupts import RunInterrupted, RunLocked, in_group, remove_stale_temp, run_locks
     from harness.results import update_status
@@ -77,6 +78,8 @@ def _try_status(write, d: Path, **fields: Any) -> None:
 
 
 def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
+    import torch
+
     from algorithms.api import DemoSet
     from algorithms.core.sac import set_update_mode
     from harness.data import atomic_write_bytes

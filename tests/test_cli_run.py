@@ -357,9 +357,13 @@ def test_list_reads_the_registry_without_importing_it():
     assert algorithm_summaries() == {n: (c.__doc__ or "").strip().splitlines()[0] for n, c in ALGORITHMS.items()}
 
 
-@pytest.mark.parametrize("argv", [["--help"], ["list"], ["run", "--bad-flag"], ["bench", "--help"], ["data", "--help"]])
+@pytest.mark.parametrize("argv", [["--help"], ["list"], ["run", "--bad-flag"], ["bench", "--help"], ["data", "--help"],
+                                  ["run", "algo=nope", "env=sawyer_door"], ["run", "algo=medal", "env=nope"],
+                                  ["run", "algo=medal", "env=sawyer_door", "steps=0"], ["run", "suite=nope"],
+                                  ["run", "nope.lr=1", "algo=medal", "env=sawyer_door"]])
 def test_quick_answers_never_load_torch(argv):
-    """The first commands a new user types answer without importing torch (seconds on a loaded machine)."""
+    """The first commands a new user types, and the usage errors of a run, answer without importing torch (seconds on a
+    loaded machine)."""
     code = ("import contextlib, io, sys\nfrom harness.cli import main\n"
             "with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):\n"
             f"    try:\n        main({argv!r})\n    except SystemExit:\n        pass\n"

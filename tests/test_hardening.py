@@ -160,6 +160,59 @@ def test_no_valid_schedule_is_refused(tmp_path_factory, words, algo):
     assert not res.exists() or not any(res.rglob("*"))  # planning writes nothing
 
 
+@st.composite
+def run_words(draw):
+    """A ``harness run`` command drawn from the declared key table (harness.request.RUN_KEYS), not a fixed list: a
+    few keys, each with a value inside its bounds (three times in five), at or past a bound, or arbitrary text; an
+    algorithm and env are added where the drawn keys name neither (nor a suite)."""
+    from harness.request import RUN_KEYS
+
+    names = sorted(set(RUN_KEYS) - {"results", "calibrate", "ray_address", "backend"})
+    words = {}
+    for key in draw(st.lists(st.sampled_from(names), min_size=1, max_size=5, unique=True)):
+        k = RUN_KEYS[key]
+        kind = draw(st.sampled_from(["valid", "valid", "valid", "bound", "text"]))
+        if kind == "text":
+            value = draw(st.text(alphabet="abc019_,.-[]e ", max_size=8))
+        elif k.lo is not None:
+            value = str(draw(st.integers(k.lo, min(k.hi, 10**5))) if kind == "valid" else
+                        draw(st.sampled_from([k.lo - 1, k.hi + 1])))
+        elif key in ("algo", "algos"):
+            value = draw(st.sampled_from(sorted(ALGORITHMS)))
+        elif key in ("env", "envs"):
+            value = draw(st.sampled_from(["tabletop_manipulation", "sawyer_door", "sawyer_peg", "kitchen"]))
+        elif key == "suite":
+            value = draw(st.sampled_from(["smoke", "reproduction", "table1", "vaprl_ablation"]))
+        else:
+            value = str(k.default) if kind == "valid" else draw(st.sampled_from(["", "x", "-1"]))
+        words[key] = value
+    if not {"suite", "algo", "algos"} & set(words):
+        words["algo"] = draw(st.sampled_from(sorted(ALGORITHMS)))
+    if not {"suite", "env", "envs"} & set(words):
+        words["env"] = "tabletop_manipulation"
+    return [f"{k}={v}" for k, v in words.items()]
+
+
+GENERATED = {0: 0, 2: 0}
+
+
+@requires_data
+@settings(max_examples=150, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(words=run_words())
+def test_generated_commands_plan_or_say_one_line(capsys, tmp_path_factory, words):
+    """Every generated command either plans (exit 0) or gets one error line and exit 2, and on 2 nothing is written."""
+    res = tmp_path_factory.mktemp("r") / "results"
+    argv = ["run", *words, f"results={res}", "calibrate=false", "--dry-run"]
+    rc = main(argv)
+    out, err = capsys.readouterr()
+    assert rc in (0, 2) and "Traceback" not in out + err, (argv, rc, err)
+    if rc == 2:
+        assert len([ln for ln in err.splitlines() if ln.strip()]) == 1 and err.startswith("harness: error: "), err
+    assert not res.exists() or not any(res.rglob("*")), argv  # a dry run writes nothing either way
+    GENERATED[rc] += 1
+
+
 BAD_SUITES = [
     "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: 5}\n",
     "algos: [medal]\nenvs: [sawyer_door]\nconfig: {medal: [1, 2]}\n",
