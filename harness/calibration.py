@@ -51,11 +51,37 @@ def key(group: RunSpec, threads: int) -> str:
 
 
 def read_cache() -> dict[str, float]:
+    """Steps/s per member by :func:`key` (entries written before the metadata existed are plain numbers)."""
+    return {k: (v["steps_per_s"] if isinstance(v, dict) else v) for k, v in _read_entries().items()}
+
+
+def _read_entries() -> dict[str, dict | float]:
     try:
         d = json.loads(_cache_file().read_text())
         return d if isinstance(d, dict) else {}
     except (OSError, ValueError):
         return {}
+
+
+def _load() -> float | None:
+    """The 1-minute load average per core (None where the OS has none): how busy the machine was when measured."""
+    try:
+        return os.getloadavg()[0] / (os.cpu_count() or 1)
+    except (OSError, AttributeError):
+        return None
+
+
+def when_measured(groups: list[RunSpec], threads: int) -> str:
+    """When the speeds of ``groups`` were measured and how busy the machine was then, for the plan's last line:
+    'on 2026-12-07 (load 1.0 per core)', or the span of dates; '' when no entry records it."""
+    entries = _read_entries()
+    meta = [e for e in (entries.get(key(g, threads)) for g in groups) if isinstance(e, dict)]
+    if not meta:
+        return ""
+    dates = sorted({e["measured"][:10] for e in meta})
+    loads = [e["load"] for e in meta if e.get("load") is not None]
+    when = dates[0] if len(dates) == 1 else f"{dates[0]} to {dates[-1]}"
+    return f" on {when}" + (f" (load {max(loads):.1f} per core at most)" if loads else "")
 
 
 def measure(group: RunSpec, threads: int) -> float:
@@ -89,20 +115,29 @@ def measure(group: RunSpec, threads: int) -> float:
         torch.set_num_threads(old)
 
 
-def rates(groups: list[RunSpec], threads: int, calibrate: bool, log=print) -> list[float | None]:
-    """Steps/s per member of each group: cached, or measured now when ``calibrate`` (and cached), else None."""
+def rates(groups: list[RunSpec], threads: int, calibrate: bool | str, log=print) -> list[float | None]:
+    """Steps/s per member of each group: cached, or measured now when ``calibrate`` (and cached with the date and the
+    machine's load), else None. ``calibrate="refresh"`` measures every group again."""
+    from datetime import datetime, timezone
+
     from harness.data import atomic_write_bytes
 
-    cache, out, dirty = read_cache(), [], False
+    entries, out, dirty, done = _read_entries(), [], False, set()
     for g in groups:
         k = key(g, threads)
-        if k not in cache and calibrate:
-            log(f"  calibrating {g.env}/{g.algo} (members={len(g.seeds)}, {threads} thread(s)) ...")
-            cache[k], dirty = measure(g, threads), True
-        out.append(cache.get(k))
+        if calibrate and (k not in entries or calibrate == "refresh" and k not in done):
+            load = _load()
+            log(f"  calibrating {g.env}/{g.algo} (members={len(g.seeds)}, {threads} thread(s)"
+                + (f", load {load:.1f} per core" if load is not None else "") + ") ...")
+            entries[k] = {"steps_per_s": measure(g, threads), "measured": datetime.now(timezone.utc).isoformat(
+                timespec="seconds"), "load": load}
+            dirty = True
+            done.add(k)
+        e = entries.get(k)
+        out.append(e["steps_per_s"] if isinstance(e, dict) else e)
     if dirty:
         try:
-            atomic_write_bytes(_cache_file(), json.dumps(cache, indent=1, sort_keys=True).encode())
+            atomic_write_bytes(_cache_file(), json.dumps(entries, indent=1, sort_keys=True).encode())
         except OSError:
             pass  # a read-only cache: measured again next time
     return out

@@ -75,7 +75,7 @@ class Plan:
     workers: int = 1
     backend: str = "local"  # local (a process pool) or ray (harness.backends)
     ray_address: str | None = None  # a Ray cluster to join; None: start a local one
-    calibrate: bool = True  # --dry-run measures the speed of groups not measured yet (harness.calibration)
+    calibrate: bool | str = True  # --dry-run measures groups not measured yet; "refresh": all (harness.calibration)
     machine: str = ""  # the node the plan was packed for (harness.packing.Machine.describe)
     packing: tuple[str, ...] = ()  # how members, workers and env_workers were chosen (harness.packing)
     per_device: int = 1  # processes at once per device (Ray reserves 1/per_device of a GPU per group)

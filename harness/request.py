@@ -81,7 +81,8 @@ RUN_KEYS: dict[str, Key] = {
     "logger": Key("parquet, or tensorboard: the same rows also as TensorBoard events in each run's tensorboard/ "
                   "directory (pip install tensorboard)", "parquet"),
     "calibrate": Key("with --dry-run: measure the speed of each kind of group not measured yet on this machine "
-                     "(seconds each, cached) for the time estimate", "true"),
+                     "(seconds each, cached with the date and the machine's load) for the time estimate; refresh: "
+                     "measure every group again; false: use only what is cached", "true"),
 }
 BACKENDS = ("local", "ray")
 LOGGERS = ("parquet", "tensorboard")
@@ -147,7 +148,7 @@ class RunRequest:
     results: str = RUN_KEYS["results"].default
     backend: str = RUN_KEYS["backend"].default
     ray_address: str | None = None
-    calibrate: bool = True
+    calibrate: bool | str = True  # True, False or "refresh"
     logger: str = RUN_KEYS["logger"].default
     env_workers: int | None = None
     update: str | None = None  # None: the mode the runs last ran with (resumed_update), else default
@@ -205,6 +206,7 @@ class RunRequest:
             eval_every=opt("eval_every"), eval_episodes=opt("eval_episodes"), checkpoint_every=opt("checkpoint_every"),
             keep_every=opt("keep_every"), log_every=opt("log_every"), members=opt("members"), workers=opt("workers"),
             device=device, results=given("results"), backend=backend, ray_address=ov.get("ray_address"),
-            calibrate=boolean("calibrate", given("calibrate")), logger=logger,
+            calibrate="refresh" if given("calibrate") == "refresh" else boolean("calibrate", given("calibrate")),
+            logger=logger,
             config=config, env_workers=opt("env_workers"), update=update,
         )

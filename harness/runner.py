@@ -116,7 +116,7 @@ def progress_line(label: str, p) -> str:
             f"ETA {_fmt_time(p.eta_s)}  success {succ}")
 
 
-def print_plan(plan: Plan, calibrate: bool = False) -> None:
+def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     """The plan, and its time on this machine from measured speeds (``calibrate``: measure what is not cached yet,
     a few seconds per kind of group; see :mod:`harness.calibration`)."""
     from harness import calibration
@@ -151,8 +151,10 @@ def print_plan(plan: Plan, calibrate: bool = False) -> None:
         return
     work = [((total[i] - done[i]) // len(plan.groups[i].seeds), rates[i]) for i in todo]
     est = calibration.estimate(work, plan.workers)
+    when = calibration.when_measured([plan.groups[i] for i in todo], threads)
     print(f"estimated time: {_fmt_time(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
-          f"on this machine (evaluations add ~3%; other load on the machine slows it)")
+          f"on this machine{when} (evaluations add ~3%; other load on the machine slows it; calibrate=refresh "
+          "measures again)")
 
 
 def run_cli(words: list[str], dry_run: bool = False) -> int:

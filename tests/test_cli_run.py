@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from datetime import datetime, timezone
 
 import numpy as np
 import pandas as pd
@@ -126,7 +127,12 @@ def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypa
     cache = calibration.read_cache()
     assert len(cache) == 2 and all(v > 0 for v in cache.values())
     assert main(args) == 0
-    assert "calibrating" not in capsys.readouterr().out  # cached
+    out = capsys.readouterr().out
+    assert "calibrating" not in out  # cached, and the estimate says when and under what load it was measured
+    today = datetime.now(timezone.utc).date().isoformat()
+    assert f"from speeds measured on this machine on {today} (load " in out
+    assert main([*args, "calibrate=refresh"]) == 0  # measured again, each kind once
+    assert capsys.readouterr().out.count("calibrating") == 2 and len(calibration.read_cache()) == 2
     assert not (tmp_path / "r").exists()
     # another update mode is another speed: measured on its own, with the agent switched to it
     from algorithms.core.sac import SAC
