@@ -46,6 +46,21 @@ def method_color(name: str) -> str:
     return METHOD_COLORS.get(name) or EXTRA_COLORS[zlib.crc32(name.encode()) % len(EXTRA_COLORS)]
 
 
+def method_colors(names: Iterable[str]) -> dict[str, str]:
+    """The colours of the methods shown together: each registered or published method its fixed colour; the others
+    (variants, suites split apart) their :func:`method_color` unless another name of the same figure holds it, then
+    the next free one of :data:`EXTRA_COLORS`, so up to 8 such names in one figure never share a colour."""
+    names = list(dict.fromkeys(names))
+    out = {n: METHOD_COLORS[n] for n in names if n in METHOD_COLORS}
+    taken: set[str] = set()
+    for n in sorted(n for n in names if n not in METHOD_COLORS):
+        i = EXTRA_COLORS.index(method_color(n))
+        free = [EXTRA_COLORS[(i + k) % len(EXTRA_COLORS)] for k in range(len(EXTRA_COLORS))]
+        out[n] = next((c for c in free if c not in taken), free[0])
+        taken.add(out[n])
+    return {n: out[n] for n in names}
+
+
 #: ablation groups shown by the dashboard when their algorithms have results
 ABLATIONS: dict[str, tuple[str, ...]] = {
     "Imitation (BC / GAIL vs MEDAL)": ("bc", "gail_naive", "gail_oracle", "medal"),

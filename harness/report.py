@@ -34,7 +34,7 @@ from harness import analysis as A
 from harness.command_keys import CURVE_METRICS, PUBLISHED_SOURCES
 from harness.command_keys import REPORT as REPORT_KEYS
 from harness.evidence import evidence_markdown, table1_evidence
-from harness.labels import algo_label, env_label, method_color, order_algos, order_envs
+from harness.labels import algo_label, env_label, method_colors, order_algos, order_envs
 from harness.stats import aggregate_scores
 from harness.suites import ConfigError, load_suite
 from harness.tables import table1, table1_csv, table1_latex, table1_markdown
@@ -52,7 +52,7 @@ def parse(overrides: list[str]) -> dict[str, str]:
 
 def algo_colors(algos) -> dict[str, str]:
     """The fixed colour of each method (:data:`harness.labels.METHOD_COLORS`, the dashboard's too)."""
-    return {a: method_color(a) for a in algos}
+    return method_colors(algos)
 
 
 def plot_curves(curves: pd.DataFrame, published: pd.DataFrame | None, metric: str = "deployed_success"):

@@ -275,6 +275,13 @@ def test_every_method_has_its_own_fixed_colour_in_report_and_dashboard():
     assert len(set(colors.values())) == len(names) >= 15
     assert method_color("risc_no_timeout_bootstrap") == colors["risc_no_tab"]
     assert method_color("vaprl_risc_no_tab") == method_color("vaprl_risc_no_tab")  # stable for variants
+    # names whose own colour collides (crc32 % 8: "medal · table1" and "risc · reproduction" both 6) still get two
+    # colours in one figure, and the registered methods beside them keep theirs
+    clash = ["medal", "medal · table1", "risc · reproduction", "medal · reproduction", "vaprl_demo_relabel"]
+    assert method_color(clash[1]) == method_color(clash[2]) and method_color(clash[3]) == method_color(clash[4])
+    shown = algo_colors(clash)
+    assert len(set(shown.values())) == len(clash) and shown["medal"] == colors["medal"]
+    assert algo_colors(clash[1:2])[clash[1]] == method_color(clash[1])  # alone, a name keeps its own colour
 
 
 def test_runs_of_different_suites_are_never_pooled_as_seeds():

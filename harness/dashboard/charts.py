@@ -9,7 +9,7 @@ import pandas as pd
 import streamlit as st
 
 from harness.dashboard.data import CURVE_METRICS
-from harness.labels import METHOD_COLORS, algo_label, env_label, method_color, order_algos, order_envs
+from harness.labels import METHOD_COLORS, algo_label, env_label, method_colors, order_algos, order_envs
 
 if TYPE_CHECKING:
     import altair as alt
@@ -20,7 +20,9 @@ DASH = {"ours": [1, 0], "risc_paper": [6, 3], "earl_benchmark": [2, 2]}
 def palette(methods: list[str]) -> list[str]:
     """The report's fixed colour of each method label (harness.labels.METHOD_COLORS), so app and figures agree."""
     by_label = {algo_label(a): a for a in METHOD_COLORS}
-    return [method_color(by_label.get(m, m)) for m in methods]
+    names = [by_label.get(m, m) for m in methods]
+    colors = method_colors(names)
+    return [colors[n] for n in names]
 
 
 def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str, band: str,
