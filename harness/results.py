@@ -30,6 +30,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from harness.data import atomic_write_bytes, find_data_dir
+from harness.envs import ENVS
 from harness.suites import ConfigError
 
 COLUMNS = ["suite", "env", "algo", "seed", "step", "metric", "value"]
@@ -183,8 +184,9 @@ def load(path: str | Path, warn=None, filename: str = EVALS_FILE) -> pd.DataFram
 
 
 #: envs whose published "deployed" curves are the deployed policy's return, not a success rate
-#: (shared/earl/README.md: EARL's kitchen and dhand_lightbulb, RISC's minitaur)
-RETURN_ENVS = frozenset({"kitchen", "dhand_lightbulb", "minitaur"})
+#: (shared/earl/README.md: EARL's kitchen and dhand_lightbulb, RISC's minitaur): each env's ``EnvInfo.published_metric``,
+#: and dhand_lightbulb, which EARL published curves for but never released
+RETURN_ENVS = frozenset({n for n, e in ENVS.items() if e.published_metric == "deployed_return"} | {"dhand_lightbulb"})
 
 
 def load_published(data_dir: str | Path | None = None) -> pd.DataFrame:

@@ -227,6 +227,8 @@ class EnvInfo:
     #                     algorithms get empty demo sets, and those that need demos are refused at plan time
     # what its simulator needs beyond the base install: (module, pip extra, newest Python the module has wheels for)
     requires: tuple[str, str, str] | None = None
+    in_table1: bool = False  # one of the MEDAL paper's Table 1 envs: its budget there is ``default_steps``
+    published_metric: str = "deployed_success"  # what the published "deployed" curves measure ("deployed_return")
 
     def unavailable(self) -> str | None:
         """Why this env cannot be built here (one line), or None: its ``requires`` module is not importable."""

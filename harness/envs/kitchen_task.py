@@ -79,4 +79,4 @@ KITCHEN_SPEC = EnvSpec(
 #: the harness's catalogue entry (registered in ``harness.envs.ENVS``). EARL ships no kitchen demonstrations
 #: (``EARLEnvs.has_demos``), so ``demos=False``; EARL's kitchen curves run to about 5M steps.
 KITCHEN = EnvInfo(spec=KITCHEN_SPEC, label="Kitchen", env_class="harness.envs.kitchen:KitchenEnv",
-                  default_steps=5_000_000, demos=False)
+                  default_steps=5_000_000, demos=False, published_metric="deployed_return")

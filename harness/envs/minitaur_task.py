@@ -134,4 +134,5 @@ MINITAUR_SPEC = EnvSpec(
 #: the catalogue entry (registered in ``harness.envs.ENVS``): no demonstrations (EARL's ``has_demos()`` is False for
 #: minitaur), no scripted experts; RISC's budget of 5M steps
 MINITAUR = EnvInfo(spec=MINITAUR_SPEC, label="Minitaur", env_class="harness.envs.minitaur:MinitaurEnv",
-                   default_steps=5_000_000, bench_steps=1_000, demos=False, requires=("pybullet", "minitaur", "3.11"))
+                   default_steps=5_000_000, bench_steps=1_000, demos=False, requires=("pybullet", "minitaur", "3.11"),
+                   published_metric="deployed_return")

@@ -48,7 +48,7 @@ def _sawyer(spec: EnvSpec, label: str, task: str, steps: int, demos: tuple[int, 
     return EnvInfo(spec=spec, label=label, env_class=f"harness.envs.sawyer:Sawyer{task.title()}Env", default_steps=steps,
                    experts=(f"harness.envs.sawyer_experts:{task}_forward", f"harness.envs.sawyer_experts:{task}_backward"),
                    scripted_demos=demos, metaworld_class=f"metaworld.envs.{metaworld}",
-                   offline_assets="harness.envs.sawyer_assets:write_sawyer_assets")
+                   offline_assets="harness.envs.sawyer_assets:write_sawyer_assets", in_table1=True)
 
 
 SAWYER_DOOR = _sawyer(DOOR_SPEC, "Sawyer Door", "door", 5_000_000, (5, 5), "sawyer_door_close_v3:SawyerDoorCloseEnvV3")

@@ -189,4 +189,5 @@ TABLETOP = EnvInfo(
     experts=("harness.envs.experts:tabletop_expert", "harness.envs.experts:tabletop_expert"),
     scripted_demos=(12, 12),
     bench_steps=50_000,
+    in_table1=True,
 )
