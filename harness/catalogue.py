@@ -12,8 +12,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def algorithm_names() -> tuple[str, ...]:
-    """The registry's algorithm names, in its order (for checking a command's words before anything heavy loads)."""
-    return tuple(algorithm_summaries())
+    """The registry's algorithm names, in its order (for checking a command's words before anything heavy loads): the
+    live ``ALGORITHMS`` where it is imported already (it may have gained an algorithm at run time: a notebook, a
+    test), else the names in its source."""
+    import sys
+
+    registry = sys.modules.get("harness.registry")
+    return tuple(registry.ALGORITHMS) if registry is not None else tuple(algorithm_summaries())
 
 
 def algorithm_summaries() -> dict[str, str]:
