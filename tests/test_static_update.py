@@ -126,7 +126,7 @@ def test_harness_run_with_other_updates(tmp_path, monkeypatch, update, switch):
              "medal.seed_steps=100", "medal.batch_size=16"]
     switched = []
     real = getattr(SAC, switch)
-    monkeypatch.setattr(SAC, switch, lambda self, *args: (switched.append(self), real(self, *args))[1])
+    monkeypatch.setattr(SAC, switch, lambda self, *a, **k: (switched.append(self), real(self, *a, **k))[1])
     tables = {}
     for mode in ("default", update):
         (spec,) = plan_words([*words, f"update={mode}", f"results={tmp_path / mode}"]).groups
