@@ -129,8 +129,9 @@ def table1_display(t: pd.DataFrame, digits: int = 2, bold: Callable[[str], str] 
             s = _fmt_ms(r["ours_mean"], r["ours_se"], digits, int(r["n"]))
             if s != "–":
                 s = bold(s) if r["ours_best"] else s
-                s += f" @{_steps(r['step'])}" if mixed else ""
-                s += EARLY if r["step"] < 0.5 * TABLE1_BUDGET.get(env, 0) else ""
+                early = r["step"] < 0.5 * TABLE1_BUDGET.get(env, 0)
+                s += f" @{_steps(r['step'])}" if mixed or early else ""  # an early number always says its step
+                s += EARLY if early else ""
             ours.append(s)
             s = _fmt_ms(r["paper_mean"], r["paper_se"], digits)
             paper.append(bold(s) if r["paper_best"] and s != "–" else s)
@@ -152,8 +153,9 @@ def table1_markdown(t: pd.DataFrame, digits: int = 2, published: bool = True) ->
     return "\n".join(lines) + "\n" + (f"\n{EARLY_NOTE}\n" if any(EARLY in str(v) for v in w.to_numpy().ravel()) else "")
 
 
-EARLY_NOTE = (f"{EARLY} taken before half of the Table-1 budget (3M tabletop, 5M door, 8M peg steps): not a final "
-              "number.")
+EARLY_NOTE = (f"{EARLY} taken before half of the Table-1 budget ("
+              + ", ".join(f"{_steps(n)} {env_label(e).lower()}" for e, n in TABLE1_BUDGET.items())
+              + " steps), at the step after @: not a final number.")
 
 
 def _tex(s: str) -> str:

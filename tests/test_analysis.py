@@ -194,10 +194,11 @@ def test_table1_beside_published(df):
     assert set(t["env"]) == set(F.ENVS)  # only envs we have results for
     assert np.isnan(r.loc[("fbrl", "sawyer_door"), "ours_mean"])  # paper-only row
     md = table1_markdown(t)
-    # at 100k of the 3M Table-1 budget: marked, with the note saying why
-    assert "| MEDAL | **0.70 (0.06)**† | **0.98 (0.02)** | -0.28 |" in md and md.rstrip().endswith("not a final number.")
+    # at 100k of the 3M Table-1 budget: marked with its step, and the note says why
+    assert "| MEDAL | **0.70 (0.06)** @100k† | **0.98 (0.02)** | -0.28 |" in md
+    assert md.rstrip().endswith("not a final number.") and "(3M tabletop organization, 5M sawyer door, 8M" in md
     tex = table1_latex(t)
-    assert r"\textbf{0.70 (0.06)}$^\dagger$" in tex and r"\begin{tabular}" in tex and "_" not in tex.replace(r"\_", "")
+    assert r"\textbf{0.70 (0.06)} @100k$^\dagger$" in tex and r"\begin{tabular}" in tex and "_" not in tex.replace(r"\_", "")
     back = pd.read_csv(__import__("io").StringIO(table1_csv(t)))
     assert list(back.columns) == list(t.columns) and len(back) == len(t)
     ours_only = table1(df, published=None)
