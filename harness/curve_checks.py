@@ -213,7 +213,7 @@ def whole_curve_verdict(ours: pd.DataFrame, published: pd.DataFrame, steps: int,
             "reached": reached, "furthest": furthest, "first_success": [None if v >= censor else int(v) for v in fs],
             "first_success_mean": fs_mean, "first_success_least": float(least), "first_success_band": (fsb["lower"], fsb["upper"]),
             "first_success_published": fsb["published"], "first_success_p_false_fail": fsb["p_false_fail"],
-            "first_success_status": fs_status}
+            "first_success_status": fs_status, "still_running": [at[s] < steps for s in seeds]}
 
 
 def whole_curve_text(v: dict) -> str:
@@ -238,8 +238,11 @@ def first_success_text(v: dict) -> str:
     lo, hi = v["first_success_band"]
     if v["first_success_status"] == "running" and not v["furthest"]:
         return f"not started; accepted mean {max(lo, 0) / 1000:.0f}k-{hi / 1000:.0f}k"
-    none = "none yet" if v["first_success_status"] == "running" else "never"
-    ours = ", ".join(none if s is None else f"{s // 1000}k" for s in v["first_success"])
+    running = v.get("still_running") or [v["first_success_status"] == "running"] * len(v["first_success"])
+    # a seed without a success says "none yet" while it runs (a verdict may be decided before: nothing to come can
+    # turn it), "never" once it finished its budget
+    ours = ", ".join(("none yet" if r else "never") if s is None else f"{s // 1000}k"
+                     for s, r in zip(v["first_success"], running))
     pub = ", ".join(f"{s // 1000}k" for s in sorted(v["first_success_published"]))
     side = ""
     if v["first_success_status"] == "fail":
