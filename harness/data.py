@@ -215,6 +215,30 @@ def _npz_bytes(arrays: dict[str, np.ndarray], source: str) -> bytes:
     return buf.getvalue()
 
 
+#: below this much free space a failed write is called what it most likely is: a full disk
+DISK_FULL_BYTES = 64 << 20
+
+
+def disk_full(path: Path, error: BaseException) -> OSError | None:
+    """A one-line :class:`OSError` for a write to ``path`` that failed because its disk is full (ENOSPC, or any error,
+    such as torch's "[enforce fail at inline_container.cc] unexpected pos", with less than 64 MiB left), else None."""
+    import errno
+    import shutil
+
+    if isinstance(error, (KeyboardInterrupt, SystemExit)):
+        return None
+    try:
+        free = shutil.disk_usage(Path(path).parent if not Path(path).is_dir() else path).free
+    except OSError:
+        free = None
+    if getattr(error, "errno", None) == errno.ENOSPC or (free is not None and free < DISK_FULL_BYTES):
+        left = f"{free / 2**20:.0f} MiB free" if free is not None else "no space"
+        return OSError(errno.ENOSPC, f"the disk of {Path(path).parent} is full ({left}) while writing {Path(path).name}: "
+                                     "free space, then run the same command: the runs resume from their last "
+                                     "checkpoint")
+    return None
+
+
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to ``path`` via a temp file in the same directory and ``os.replace``."""
     path = Path(path)
@@ -227,8 +251,11 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
             os.fsync(f.fileno())
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         Path(tmp).unlink(missing_ok=True)
+        full = disk_full(path, e)
+        if full is not None:
+            raise full from None
         raise
 
 

@@ -41,6 +41,7 @@ import numpy as np
 import torch
 
 from algorithms.api import Algorithm
+from harness.data import disk_full
 from harness.env_pool import LocalEnvs, WorkerEnvs, make_envs
 from harness.plan import RunSpec
 from harness.results import TRAIN_FILE, RunResults, kept_checkpoint_path, write_status
@@ -183,8 +184,11 @@ def _atomic_torch_save(obj: Any, path: Path) -> None:
     try:
         torch.save(obj, tmp)
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as e:
+        Path(tmp).unlink(missing_ok=True)  # the last checkpoint stays as it was: the run resumes from it
+        full = disk_full(path, e)
+        if full is not None:
+            raise full from None
         raise
 
 

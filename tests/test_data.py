@@ -208,3 +208,20 @@ def test_published_deployed_values_are_returns_on_kitchen_dhand_and_minitaur():
     assert kinds["kitchen"] == kinds["minitaur"] == kinds["dhand_lightbulb"] == ["deployed_return"]
     assert kinds["sawyer_peg"] == kinds["tabletop_manipulation"] == ["deployed_success"]
     assert p.loc[(p["env"] == "kitchen") & (p["metric"] == "deployed_return"), "value"].min() < -1  # returns, not rates
+
+
+def test_a_results_write_on_a_full_disk_says_so_and_leaves_the_old_file(tmp_path, monkeypatch):
+    import errno
+
+    from harness import data as D
+
+    target = tmp_path / "evals.parquet"
+    target.write_bytes(b"old rows")
+
+    def no_space(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(D.os, "fsync", no_space)
+    with pytest.raises(OSError, match=r"the disk of .* is full .* while writing evals.parquet: free space, then run"):
+        D.atomic_write_bytes(target, b"new rows")
+    assert target.read_bytes() == b"old rows" and [p.name for p in tmp_path.iterdir()] == ["evals.parquet"]

@@ -288,3 +288,41 @@ def test_results_are_joinable_with_published_curves(tmp_path):
     both = pd.concat([ours, pub], ignore_index=True)
     assert {"harness", "earl_benchmark", "risc_paper"} <= set(both["source"])
     assert "deployed_success" in set(pub["metric"]) and "algo" in pub.columns
+
+
+@requires_data
+def test_a_full_disk_is_named_and_the_run_resumes_to_the_same_rows(tmp_path, monkeypatch):
+    """A checkpoint write that fails on a full disk (torch's own message, with the disk reported nearly full) stops the
+    run with one line naming the disk and the way on; the last checkpoint stays, and the same command then writes
+    the rows an uninterrupted run writes."""
+    import shutil
+
+    import torch
+
+    from harness import protocol
+    from harness.planning import plan_words
+    from harness.runner import run_group
+
+    words = ["algo=naive", "env=tabletop_manipulation", "steps=300", "eval_every=100", "checkpoint_every=100",
+             "eval_episodes=1", "naive.seed_steps=50", "naive.batch_size=16"]
+    (ref,) = plan_words([*words, f"results={tmp_path / 'ref'}"]).groups
+    assert run_group(ref, "test") is None
+    (spec,) = plan_words([*words, f"results={tmp_path / 'full'}"]).groups
+    real_save, calls = torch.save, []
+
+    def save(obj, f, *a, **k):
+        calls.append(f)
+        if len(calls) == 2:  # the checkpoint at step 200
+            raise RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 64 vs 0")
+        return real_save(obj, f, *a, **k)
+
+    monkeypatch.setattr(protocol.torch, "save", save)
+    real_usage = shutil.disk_usage
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: real_usage(p)._replace(free=1 << 20))
+    err = run_group(spec, "test")
+    assert err is not None and "is full (1 MiB free) while writing checkpoint.pt" in err and "resume" in err
+    assert "enforce fail" not in err
+    monkeypatch.undo()
+    assert run_group(spec, "test") is None  # resumed from the checkpoint at 100
+    pd.testing.assert_frame_equal(_comparable(load(tmp_path / "ref")), _comparable(load(tmp_path / "full")))
+    pd.testing.assert_frame_equal(_comparable(load_train(tmp_path / "ref")), _comparable(load_train(tmp_path / "full")))
