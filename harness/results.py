@@ -211,10 +211,21 @@ def _last_step(evals: Path) -> int:
     return -1 if len(steps) == 0 else int(pc.max(steps).as_py())
 
 
+def _shipped_status(run: Path) -> bytes:
+    """The status a shipped copy carries: a finished or failed run's as it is; an unfinished one's as ``shipped``
+    (a copy taken at its step; the run goes on elsewhere, so no speed, no ETA and never "stale")."""
+    st = read_status(run) or {}
+    if st.get("state") in ("done", "failed"):
+        return (run / STATUS_FILE).read_bytes()
+    st = {**st, "state": "shipped", "shipped_from": st.get("state"), "steps_per_s": None, "eta_s": None}
+    return (json.dumps(st, indent=1, allow_nan=False) + "\n").encode()
+
+
 def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) -> tuple[list[Path], list[str]]:
     """Copy the tables of every run of ``suite`` under ``source`` (``evals.parquet``, ``train.parquet``, ``run.yaml``,
     ``status.json``; never checkpoints) to the same place under ``dest``, each file written atomically: the small
-    tables a repository can ship so that a fresh clone shows them (docs/reproduction.md).
+    tables a repository can ship so that a fresh clone shows them (docs/reproduction.md). An unfinished run's status
+    is shipped as ``shipped`` at its step (see :func:`_shipped_status`).
 
     A run that restarted from 0 (its checkpoint lost with a machine) would replace a shipped table that got further;
     such a run is kept as shipped, and named in the second return value, unless ``force``. Returns (files written,
@@ -237,6 +248,7 @@ def ship(source: str | Path, suite: str, dest: str | Path, force: bool = False) 
         for name in (EVALS_FILE, TRAIN_FILE, RUN_FILE, STATUS_FILE):  # the training diagnostics too: a diagnosis cites them
             if (run / name).is_file():
                 target = dst / rel / name
-                atomic_write_bytes(target, (run / name).read_bytes())
+                data = (run / name).read_bytes() if name != STATUS_FILE else _shipped_status(run)
+                atomic_write_bytes(target, data)
                 written.append(target)
     return written, kept

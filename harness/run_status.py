@@ -25,7 +25,8 @@ def _num(v: Any) -> float:
 
 def run_status(results: str | Path, now: float | None = None, stale_after: float = 900.0) -> pd.DataFrame:
     """One row per run directory under ``results`` (any folder with a ``status.json`` or an
-    ``evals.parquet``). ``state`` is the status file's (running / done / failed / resumed), or
+    ``evals.parquet``). ``state`` is the status file's (running / done / failed / resumed; ``shipped``: a copy of an
+    unfinished run, ``harness ship``), or
     ``unknown`` without one; a running or resumed run whose status was last updated more than
     ``max(stale_after, 3 x (eval interval from run.yaml) / steps_per_s)`` seconds ago is marked
     ``stale``. ``error`` is the first line of the recorded error; ``tuning`` marks the trial runs of
@@ -81,7 +82,7 @@ def _eval_every(run_yaml: Path) -> float | None:
 
 def status_counts(status: pd.DataFrame) -> dict[str, int]:
     """Runs per state, in a fixed order (only states present)."""
-    order = ["running", "resumed", "stale", "done", "failed", "unknown"]
+    order = ["running", "resumed", "stale", "shipped", "done", "failed", "unknown"]
     c = status["state"].value_counts()
     return {s: int(c[s]) for s in order + sorted(set(c.index) - set(order)) if s in c.index}
 

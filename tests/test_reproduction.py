@@ -319,3 +319,24 @@ def test_ship_keeps_a_shipped_table_that_got_further_than_a_restarted_run(tmp_pa
     assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo}", "force=true"]) == 0
     pd.testing.assert_frame_equal(load(repo), load(runs))
     assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo}", "force=maybe"]) == 2
+
+
+def test_a_shipped_unfinished_run_says_shipped_not_stale(tmp_path):
+    """An unfinished run's status ships as ``shipped`` at its step (no speed, no ETA: the run goes on elsewhere), never
+    ``stale`` however old the copy; a finished run's ships as it is."""
+    from harness.results import RunResults, read_status, ship, write_status
+    from harness.run_status import run_status, status_counts
+
+    for seed, state in ((0, "running"), (1, "done")):
+        d = run_dir(tmp_path / "runs", "s", "sawyer_door", "medal", seed)
+        RunResults(d, {"suite": "s", "env": "sawyer_door", "algo": "medal", "seed": seed}, {}).append(
+            0, {"deployed_success": 0.0})
+        write_status(d, state=state, step=380_000, total=8_000_000, steps_per_s=34.0, eta_s=2e5, last_success=0.0,
+                     updated=1.0)  # last updated long ago
+    ship(tmp_path / "runs", "s", tmp_path / "repo")
+    shipped = [read_status(run_dir(tmp_path / "repo", "s", "sawyer_door", "medal", s)) for s in (0, 1)]
+    assert shipped[0]["state"] == "shipped" and shipped[0]["shipped_from"] == "running"
+    assert shipped[0]["step"] == 380_000 and shipped[0]["eta_s"] is None and shipped[0]["steps_per_s"] is None
+    assert shipped[1]["state"] == "done" and shipped[1]["eta_s"] == 2e5
+    st = run_status(tmp_path / "repo")
+    assert sorted(st["state"]) == ["done", "shipped"] and status_counts(st) == {"shipped": 1, "done": 1}
