@@ -155,6 +155,30 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     print(f"estimated time: {_fmt_time(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
           f"on this machine{when} (evaluations add ~3%; other load on the machine slows it; calibrate=refresh "
           "measures again)")
+    if est > LONG_PLAN_S:
+        print(ways_forward(plan, work, est))
+
+
+#: a plan longer than this on the machine at hand gets the ways to shorten it (harness run --dry-run)
+LONG_PLAN_S, CLUSTER_NODES = 24 * 3600, 8
+
+
+def ways_forward(plan: Plan, work: list[tuple[int, float]], est: float) -> str:
+    """What a user can do about a long plan: a Ray cluster of machines like this one, a GPU node, fewer seeds (with
+    the time each would take, from the same measured speeds), or the shipped results."""
+    from harness import calibration
+
+    cluster = calibration.estimate(work, plan.workers * CLUSTER_NODES)
+    seeds: dict[tuple[str, str], set[int]] = {}
+    for g in plan.groups:
+        seeds.setdefault((g.env, g.algo), set()).update(g.seeds)
+    steps = {(g.env, g.algo): g.steps for g in plan.groups}
+    share = sum(min(2, len(s)) * steps[c] for c, s in seeds.items()) / sum(len(s) * steps[c] for c, s in seeds.items())
+    few = f"seeds=2 (about {_fmt_time(est * share)})" if share < 1 else ""
+    return (f"that is long for this machine; ways forward: a Ray cluster of {CLUSTER_NODES} machines like it (backend=ray "
+            f"ray_address=auto: about {_fmt_time(cluster)}); a GPU node (device=cuda trains a cell's seeds as members "
+            "of one process, docs/performance.md)" + (f"; {few}" if few else "") + "; the tables shipped in results/ "
+            "already hold what this project has run (streamlit run app.py, harness report)")
 
 
 def run_cli(words: list[str], dry_run: bool = False) -> int:

@@ -113,6 +113,29 @@ def test_dry_run_prints_plan(tmp_path, capsys):
 
 
 @requires_data
+def test_a_long_plan_offers_ways_forward(tmp_path, capsys):
+    """Over a day on this machine, the dry run says what would shorten it, each with its time from the same speeds."""
+    from harness import calibration
+    from harness.data import state_dir
+    from harness.planning import plan_words
+
+    words = ["algo=naive", "env=tabletop_manipulation", "seeds=5", "steps=10000000", "workers=2",
+             f"results={tmp_path}", "calibrate=false"]
+    plan = plan_words(words)
+    cache = {calibration.key(g, calibration.worker_threads(plan.workers)): 100.0 for g in plan.groups}
+    (state_dir() / "calibration.json").parent.mkdir(parents=True, exist_ok=True)
+    (state_dir() / "calibration.json").write_text(json.dumps(cache))
+    assert main(["run", *words, "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    # 5 one-seed groups of 10M steps at 100 steps/s (27h46m each), 3 on one of 2 workers: 83h20m; 16 workers: one
+    # group each, 27h46m; 2 seeds of 5: 33h20m
+    assert "estimated time: 83h20m" in out and "a Ray cluster of 8 machines like it" in out
+    assert "ray_address=auto: about 27h46m" in out and "seeds=2 (about 33h20m)" in out
+    words[3] = "steps=100000"  # 1h23m: nothing to add
+    assert main(["run", *words, "--dry-run"]) == 0 and "ways forward" not in capsys.readouterr().out
+
+
+@requires_data
 def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypatch):
     """--dry-run measures each kind of group once (cached per machine, threads and config) and packs the groups
     onto the workers longest first."""
