@@ -6,6 +6,7 @@ imported registry."""
 from __future__ import annotations
 
 import ast
+from functools import lru_cache
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -23,6 +24,12 @@ def algorithm_names() -> tuple[str, ...]:
 
 def algorithm_summaries() -> dict[str, str]:
     """Registry name -> the first line of its class's docstring, in the registry's order."""
+    return dict(_summaries())
+
+
+@lru_cache(maxsize=1)
+def _summaries() -> tuple[tuple[str, str], ...]:
+    """Parsed once per process: a suite of cells checks its names once per cell."""
     tree = ast.parse((ROOT / "harness" / "registry.py").read_text())
     module_of = {a.asname or a.name: node.module for node in tree.body if isinstance(node, ast.ImportFrom)
                  for a in node.names}
@@ -34,4 +41,4 @@ def algorithm_summaries() -> dict[str, str]:
         source = ROOT / Path(*module_of[cls].split(".")).with_suffix(".py")
         node = next(n for n in ast.parse(source.read_text()).body if isinstance(n, ast.ClassDef) and n.name == cls)
         out[key.value] = (ast.get_docstring(node) or "").strip().splitlines()[0]
-    return out
+    return tuple(out.items())
