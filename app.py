@@ -20,7 +20,7 @@ import streamlit as st
 
 from harness import analysis as A
 from harness.dashboard.analysis_tabs import tab_ablations, tab_aggregates, tab_diagnostics
-from harness.dashboard.data import Sel, default_results, load_results, signature
+from harness.dashboard.data import OWN, Sel, default_results, load_results, signature, tab_view
 from harness.dashboard.reproduction_tabs import tab_reproduction, tab_tuning
 from harness.dashboard.results_tabs import tab_curves, tab_runs, tab_table1
 from harness.labels import algo_label, env_label, order_algos, order_envs
@@ -73,8 +73,11 @@ def main() -> None:
         if len(df) and not tuning:
             df = df[~A.is_tuning(df)]
         suites = sorted(df["suite"].unique()) if len(df) else []
-        suite_choice = st.selectbox("suite", ["all"] + suites, key="suite")
-        suite = None if suite_choice == "all" else suite_choice
+        suite_choice = st.selectbox("suite", [OWN, "all"] + suites, key="suite",
+                                    help=f"{OWN}: Table 1 and Aggregates show the Table-1 cells from the runs that "
+                                         "check them, Learning curves the latest suite, Ablations a suite per group; "
+                                         "all: every suite (a method run in several is split by suite, never pooled)")
+        suite = None if suite_choice in ("all", OWN) else suite_choice
         sub = A.select(df, suite=suite) if len(df) else df
         env_opts = order_envs(sub["env"].unique()) if len(sub) else []
         algo_opts = order_algos(sub["algo"].unique()) if len(sub) else []
@@ -87,6 +90,7 @@ def main() -> None:
         st.caption(f"{n_runs} runs with results · {len(df):,} rows · files changed "
                    f"{format_duration(time.time() - sig[1])} ago")
 
+    own = suite_choice == OWN
     tabs = st.tabs(TABS, key="tab", on_change="rerun", bind="query-params")
     for tab, name in zip(tabs, TABS):
         if tab.open is False:
@@ -102,14 +106,14 @@ def main() -> None:
                 tab_diagnostics(root, sig, sel)
             elif not len(df) or not envs or not algos:
                 st.info("No evaluations for this selection yet (see the Runs tab).")
-            elif name == "Learning curves":
-                tab_curves(root, sig, sel)
-            elif name == "Table 1":
-                tab_table1(root, sig, sel)
-            elif name == "Aggregates":
-                tab_aggregates(root, sig, sel)
             elif name == "Ablations":
-                tab_ablations(root, sig, sel)
+                tab_ablations(root, sig, sel, best_suite_only=own)
+            else:
+                view, caption = tab_view(root, sig, df, name) if own else (suite, "")
+                if caption:
+                    st.caption(caption)
+                {"Learning curves": tab_curves, "Table 1": tab_table1, "Aggregates": tab_aggregates}[name](
+                    root, sig, sel._replace(suite=view))
     st.sidebar.caption(f"rendered in {time.perf_counter() - t0:.2f} s")
     if auto:
         time.sleep(30)

@@ -30,6 +30,27 @@ def _summary(rows: pd.DataFrame) -> str:
     return "verified" if curves else "verified (final window only: no published curves)"
 
 
+def table1_cells() -> dict[tuple[str, str], str]:
+    """(method, env) of each Table-1 cell -> the suite whose cell checks it (:data:`TABLE1_SUITES`, first wins)."""
+    cells: dict[tuple[str, str], str] = {}
+    for suite in TABLE1_SUITES:
+        for cell in load_ladder(suite).cells:
+            if (cell.name, cell.env) in PUBLISHED_TABLE1:
+                cells.setdefault((cell.name, cell.env), suite)
+    return cells
+
+
+def table1_cell_rows(df: pd.DataFrame, cells: dict[tuple[str, str], str] | None = None) -> pd.DataFrame:
+    """The rows of ``df`` (ours) that belong to a Table-1 cell: method ``m`` on env ``e`` from the suite of cell
+    ``(m, e)`` only, so no cell pools runs of two suites."""
+    cells = table1_cells() if cells is None else cells
+    if df.empty:
+        return df
+    want = pd.MultiIndex.from_tuples([(s, e, a) for (a, e), s in cells.items()], names=["suite", "env", "algo"])
+    have = pd.MultiIndex.from_frame(df[["suite", "env", "algo"]].astype(str))
+    return df[have.isin(want)]
+
+
 def table1_evidence(df: pd.DataFrame, published: pd.DataFrame | None) -> pd.DataFrame:
     """One row per Table-1 cell: algo, env, suite, budget, seeds, reached (slowest seed), ``evidence`` (verified /
     fails / running / no results / no cell), the final-window verdicts (``windows``), ``curve`` and

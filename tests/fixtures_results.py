@@ -116,3 +116,31 @@ def write_tuning(root: Path) -> Path | None:
     study.optimize(lambda t: 1 - abs(math.log10(t.suggest_float("lr", 1e-4, 1e-2, log=True)) + 2.5)
                    + 0 * t.suggest_int("batch_size", 32, 256), n_trials=12)
     return path
+
+
+#: :func:`write_mixed_suites`: (suite, env, algo) -> (seeds, last step, eval every, final success, hours since updated)
+MIXED = {
+    **{("smoke", "tabletop_manipulation", a): ((0,), 400, 200, 0.0, 0.0)
+       for a in ("naive", "medal", "medal_logc", "fbrl_vice", "bc", "gail_naive", "gail_oracle")},
+    ("reproduction", "tabletop_manipulation", "medal"): ((0, 1, 2), 1_500_000, 100_000, 1.0, 2.0),
+    ("reproduction", "tabletop_manipulation", "risc"): ((0, 1), 500_000, 100_000, 0.8, 2.0),  # not a Table-1 cell
+    ("table1", "sawyer_peg", "medal"): ((0, 1), 400_000, 100_000, 0.0, 1.0),  # running: 400k of 8M
+    ("imitation", "sawyer_door", "medal"): ((0, 1), 200_000, 100_000, 0.9, 3.0),
+    ("imitation", "sawyer_door", "bc"): ((0, 1), 200_000, 100_000, 0.3, 3.0),
+}
+
+
+def write_mixed_suites(root: str | Path) -> Path:
+    """Runs of one method in several suites at very different budgets, as after ``harness run suite=smoke`` in a
+    results directory with the shipped tables (:data:`MIXED`): success rises linearly to its final value; smoke is the
+    most recently updated suite."""
+    root = Path(root)
+    now = time.time()
+    for (suite, env, algo), (seeds, last, every, final, hours) in MIXED.items():
+        for seed in seeds:
+            done = suite != "table1"
+            st = {"state": "done" if done else "running", "step": last, "total": last if done else 8_000_000,
+                  "steps_per_s": 40.0, "eta_s": 0.0, "last_success": final, "updated": now - 3600 * hours}
+            write_run(root, suite, env, algo, seed, range(0, last + 1, every),
+                      lambda s, f=final, last=last: {"deployed_success": f * s / last}, st, every)
+    return root

@@ -111,3 +111,42 @@ def test_reproduction_and_diagnostics_tabs_in_chromium(tmp_path):
         page.locator('[data-testid="stVegaLiteChart"] canvas, [data-testid="stVegaLiteChart"] svg').last.wait_for(
             timeout=30_000)
         _no_exception(page)
+
+
+def test_default_views_never_pool_suites_in_chromium(tmp_path):
+    """Issue 58: a smoke run beside the shipped tables (tests/fixtures_results.py:MIXED), served and drawn in Chromium:
+    Table 1 shows the Table-1 cells (MEDAL 1.00 from its 3 reproduction seeds, peg at @400k†), Learning curves the smoke
+    suite alone, Ablations one suite per group (the largest budget); no method's name carries a suite (nothing split, nothing pooled).
+    Screenshots: /tmp/dashboard_default_{table1,curves,ablations}.png."""
+    from tests.fixtures_results import write_mixed_suites
+
+    with serve(write_mixed_suites(tmp_path / "results"), tmp_path / "streamlit.log") as url, chromium() as browser:
+        page = browser.new_page(viewport=VIEWPORT)
+        page.goto(url, wait_until="domcontentloaded")
+        page.locator('[data-testid="stMetric"]').first.wait_for(timeout=30_000)
+
+        page.get_by_role("tab", name="Table 1").click()
+        table = page.locator('[data-testid="stMarkdown"] table')
+        table.first.wait_for(timeout=30_000)
+        text = table.first.inner_text()
+        assert "1.00 (0.00)" in text and "@400k†" in text and "smoke" not in text and "RISC" not in text, text
+        page.get_by_text("The Table-1 cells, each from the runs").wait_for(timeout=30_000)
+        _no_exception(page)
+        page.screenshot(path="/tmp/dashboard_default_table1.png", full_page=True)
+
+        page.get_by_role("tab", name="Learning curves").click()
+        page.get_by_text("Suite smoke, the most recently updated").wait_for(timeout=30_000)
+        page.locator('[data-testid="stVegaLiteChart"] canvas, [data-testid="stVegaLiteChart"] svg').first.wait_for(
+            timeout=30_000)
+        page.wait_for_timeout(1500)
+        assert page.locator('[data-testid="stVegaLiteChart"]').count() == 1  # tabletop only: smoke's env
+        _no_exception(page)
+        page.screenshot(path="/tmp/dashboard_default_curves.png", full_page=True)
+
+        page.get_by_role("tab", name="Ablations").click()
+        page.get_by_text("Reward form (MEDAL vs log C)").wait_for(timeout=30_000)
+        page.wait_for_timeout(1500)
+        main = page.locator('[data-testid="stMain"]').inner_text()
+        assert page.get_by_text("Suite smoke:").count() == 2 and page.get_by_text("Suite imitation:").count() == 1 and "· smoke" not in main and "· imitation" not in main
+        _no_exception(page)
+        page.screenshot(path="/tmp/dashboard_default_ablations.png", full_page=True)

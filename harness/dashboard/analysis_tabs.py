@@ -62,29 +62,50 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
     st.caption(f"95% CI [{lo:.2f}, {hi:.2f}] over {len(envs_xy)} env(s): {', '.join(env_label(e) for e in envs_xy)}.")
 
 
-def tab_ablations(root, sig, sel: Sel) -> None:
+def _mean_se(mean: float, se: float, n: int, step: float) -> str:
+    return (f"{mean:.2f} (1 seed)" if n == 1 else f"{mean:.2f} ({se:.2f})") + f" @{int(step):,}"
+
+
+def tab_ablations(root, sig, sel: Sel, best_suite_only: bool = False) -> None:
+    """Each ablation group (:data:`harness.labels.ABLATIONS`) from each suite that holds two or more of its methods,
+    a suite at a time (runs of two suites are never pooled). ``best_suite_only`` (the sidebar's default view): only the
+    suite with the largest budget (ties: the most of the group's methods), so a real ablation run wins over a smoke
+    test."""
     df = filtered(root, sig, sel)
-    have = set(df["algo"].unique()) if len(df) else set()
+    if len(df):  # one suite at a time below: undo the per-suite names of a selection of all suites
+        df = df.assign(algo=df["algo"].map(A.base_algo))
     shown = 0
     for title, group in ABLATIONS.items():
-        present = [a for a in group if a in have]
-        if len(present) < 2:
+        d = df[df["algo"].isin(group)] if len(df) else df
+        if d.empty:
             continue
-        shown += 1
-        st.subheader(title)
-        sub = tuple(sorted(present))
-        c = curves_for(root, sig, sel._replace(algos=sub), "deployed_success", 1, "auto", False)
-        curves_grid(c, None, "deployed_success", "se", ncols=3)
-        fp = A.final_performance(A.select(df, algo=list(present)))
-        fp["final (mean (SE))"] = [f"{m:.2f} ({s:.2f})" for m, s in zip(fp["mean"], fp["se"])]
-        wide = fp.pivot(index="algo", columns="env", values="final (mean (SE))")
-        wide.index = [algo_label(a) for a in wide.index]
-        wide.columns = [env_label(e) for e in wide.columns]
-        st.dataframe(wide)
+        per = d.groupby("suite").agg(n=("algo", "nunique"), step=("step", "max"))
+        per = per[per["n"] >= 2].sort_values(["step", "n"], ascending=False, kind="stable")
+        for suite in per.index[:1] if best_suite_only else per.index:
+            shown += 1
+            ds = d[d["suite"] == suite]
+            present = order_algos(ds["algo"].unique())
+            st.subheader(title if best_suite_only or len(per) == 1 else f"{title} · {suite}")
+            st.caption(f"Suite **{suite}**: {len(present)} of the group's {len(group)} methods, evaluations up to "
+                       f"step {int(per.loc[suite, 'step']):,}."
+                       + (" Other suites with two or more: " + ", ".join(per.index[1:]) + " (choose one in the "
+                          "sidebar)." if best_suite_only and len(per) > 1 else ""))
+            c = curves_for(root, sig, sel._replace(suite=suite, algos=tuple(sorted(present))), "deployed_success", 1,
+                           "auto", False)
+            curves_grid(c, None, "deployed_success", "se", ncols=3)
+            fp = A.final_performance(ds)
+            fp["final"] = [_mean_se(*v) for v in zip(fp["mean"], fp["se"], fp["n"], fp["step"])]
+            wide = fp.pivot(index="algo", columns="env", values="final")
+            wide.index = [algo_label(a) for a in wide.index]
+            wide.columns = [env_label(e) for e in wide.columns]
+            st.dataframe(wide)
     if not shown:
         lines = "\n".join(f"- {t}: {', '.join(g)}" for t, g in ABLATIONS.items())
-        st.info("No ablation has results for two or more of its methods yet. The groups:\n" + lines +
+        st.info("No suite has results for two or more methods of an ablation yet. The groups:\n" + lines +
                 "\n\nRun e.g. `harness run algos=medal,medal_logc,fbrl_vice,bc,gail_naive,gail_oracle envs=... seeds=5`.")
+    else:
+        st.caption("Final: deployed success at each run's last evaluation, mean (standard error, ddof=1) over seeds, "
+                   "@ the largest step used.")
 
 
 def tab_diagnostics(root: str, sig: tuple, sel: Sel) -> None:

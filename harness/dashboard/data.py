@@ -14,7 +14,9 @@ import pandas as pd
 import streamlit as st
 
 from harness import analysis as A
+from harness.evidence import table1_cell_rows, table1_cells
 from harness.results import EVALS_FILE, STATUS_FILE, TRAIN_FILE, load, load_train
+from harness.run_status import run_status
 from harness.stats import aggregate_scores
 from harness.tables import PUBLISHED_TABLE1, table1
 
@@ -74,8 +76,15 @@ def load_published_curves() -> tuple[pd.DataFrame | None, str]:
         return None, " ".join(str(e).split())
 
 
+#: the sidebar's first suite choice (the default): each tab shows the view that suits it (:func:`tab_view`)
+OWN = "each tab's own"
+#: ``Sel.suite`` of Table 1's view: each Table-1 cell's runs from the suite whose cell checks it
+TABLE1_CELLS = "Table-1 cells"
+
+
 class Sel(NamedTuple):
-    """The sidebar's selection (hashable: a cache key)."""
+    """The sidebar's selection (hashable: a cache key). ``suite``: one suite, ``None`` (all) or
+    :data:`TABLE1_CELLS`."""
 
     suite: str | None
     envs: tuple
@@ -89,9 +98,51 @@ def filtered(root: str, sig: tuple, sel: Sel) -> pd.DataFrame:
         return df
     if not sel.tuning:
         df = df[~A.is_tuning(df)]
+    if sel.suite == TABLE1_CELLS:  # one suite per (method, env): nothing to pool, names stay the methods'
+        return A.select(table1_cell_rows(df, table1_cells_cached()), env=list(sel.envs), algo=list(sel.algos))
     # runs of one method from several suites are shown side by side (MEDAL · reproduction, MEDAL · smoke), never
     # averaged as seeds of one method
     return A.separate_suites(A.select(df, suite=sel.suite, env=list(sel.envs), algo=list(sel.algos)))
+
+
+@st.cache_data(show_spinner=False)
+def table1_cells_cached() -> dict[tuple[str, str], str]:
+    return table1_cells()
+
+
+@st.cache_data(show_spinner=False, max_entries=4)
+def latest_suites(root: str, sig: tuple) -> list[str]:
+    """The suites under ``root``, the most recently updated first (status.json's ``updated``)."""
+    status = run_status(root)
+    status = status[~status["tuning"] & status["suite"].notna()]
+    if status.empty:
+        return []
+    return list(status.groupby("suite")["age_s"].min().sort_values(kind="stable").index)
+
+
+def main_suite(df: pd.DataFrame) -> str:
+    """The suite of ``df`` (ours, not empty) with the largest budget reached (ties: the most runs, then the name)."""
+    runs = df.drop_duplicates(["suite", "env", "algo", "seed"]).groupby("suite").size().rename("runs")
+    g = df.groupby("suite")["step"].max().to_frame().join(runs)
+    return str(g.sort_values(["step", "runs"], ascending=False, kind="stable").index[0])
+
+
+def tab_view(root: str, sig: tuple, df: pd.DataFrame, tab: str) -> tuple[str | None, str]:
+    """The default view of ``tab`` (the sidebar's :data:`OWN`): ``(Sel.suite, what it shows)``. Table 1 and Aggregates:
+    the Table-1 cells from the runs that check them (:func:`harness.evidence.table1_cell_rows`), or without any, the
+    suite with the largest budget; Learning curves: the most recently updated suite; every other tab: all suites
+    (Ablations then picks a suite per group)."""
+    if df.empty or tab not in ("Table 1", "Aggregates", "Learning curves"):
+        return None, ""
+    if tab == "Learning curves":
+        have = set(df["suite"])
+        suite = next((s for s in latest_suites(root, sig) if s in have), None) or main_suite(df)
+        return suite, (f"Suite **{suite}**, the most recently updated; choose another (or all) in the sidebar.")
+    if len(table1_cell_rows(df, table1_cells_cached())):
+        return TABLE1_CELLS, ("The Table-1 cells, each from the runs of the reproduction cell that checks it (suites "
+                              "reproduction and table1); choose a suite in the sidebar to see another.")
+    suite = main_suite(df)
+    return suite, f"Suite **{suite}**, the one with the largest budget; choose another (or all) in the sidebar."
 
 
 @st.cache_data(show_spinner=False, max_entries=32)
