@@ -3,6 +3,7 @@ of methods overlaid with the published ones, and a reproduction cell's seeds aga
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import pandas as pd
@@ -26,8 +27,9 @@ def palette(methods: list[str]) -> list[str]:
 
 
 def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str, band: str,
-                methods: list[str]) -> alt.Chart:
-    """Methods overlaid: mean line, band (SE or bootstrap CI), published curves dashed."""
+                methods: list[str], legend_columns: int = 2) -> alt.Chart:
+    """Methods overlaid: mean line, band (SE or bootstrap CI), published curves dashed; the legend in
+    ``legend_columns`` columns (every label whole at half the page's width)."""
     import altair as alt  # imported on first chart: keeps the first page load light
     c = c[c["env"] == env].copy()
     c["method"] = c["algo"].map(algo_label)
@@ -45,7 +47,7 @@ def curve_chart(c: pd.DataFrame, pub: pd.DataFrame | None, env: str, metric: str
     d["n"] = d["n"].astype("float64")
     x = alt.X("step:Q", title="environment steps", axis=alt.Axis(format="~s"))
     color = alt.Color("method:N", scale=alt.Scale(domain=methods, range=palette(methods)),
-                      legend=alt.Legend(title=None, orient="bottom", columns=3, labelLimit=300,
+                      legend=alt.Legend(title=None, orient="bottom", columns=legend_columns, labelLimit=300,
                                         symbolType="stroke", symbolOpacity=1, symbolStrokeWidth=3))
     dash_domain = [k for k in DASH if k in set(d["curve"])]
     dash = alt.StrokeDash("curve:N", scale=alt.Scale(domain=dash_domain, range=[DASH[k] for k in dash_domain]),
@@ -67,12 +69,15 @@ def curves_grid(c: pd.DataFrame, pub: pd.DataFrame | None, metric: str, band: st
     envs = order_envs(c["env"])
     algos = order_algos(list(c["algo"]) + (list(pub["algo"]) if pub is not None else []))
     methods = [algo_label(a) for a in algos]
+    legend_columns = 2 if ncols <= 2 else 1
+    height = 340 + 18 * math.ceil(len(methods) / legend_columns)  # the plot keeps its height however long the legend
     for i in range(0, len(envs), ncols):
         cols = st.columns(ncols)
         for col, env in zip(cols, envs[i:i + ncols]):
             with col:
                 # Streamlit's default height="content" squashes layered charts: give the height here
-                st.altair_chart(curve_chart(c, pub, env, metric, band, methods), width="stretch", height=430)
+                st.altair_chart(curve_chart(c, pub, env, metric, band, methods, legend_columns), width="stretch",
+                                height=height)
 
 
 def cell_chart(ladder, cell, ours: pd.DataFrame, pub: pd.DataFrame | None, verdicts: list[str]) -> alt.Chart:
