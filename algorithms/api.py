@@ -3,11 +3,14 @@
 An algorithm trains E independent *members* (seeds) in lockstep; every array it receives or
 returns has a leading member dimension E. The protocol loop owns the environments, hard resets,
 evaluation, results and checkpoints; the algorithm owns its controllers, goals, buffers and
-updates. Per training step the loop calls::
+updates. Per training step the loop (``harness.protocol.Interaction.step``) calls::
 
     actions = algo.act(obs)                       # (E, obs_dim) -> (E, act_dim) in [-1, 1]
+    if algo.update_at == AFTER_ACT: algo.update()      # MEDAL's order: learn before the env moves
     next_obs = envs.step(actions)
-    wants_reset = algo.observe(next_obs, hard_reset)   # store, switch controllers; (E,) bool
+    algo.store(next_obs, hard_reset)              # record the transitions just taken
+    if algo.update_at == AFTER_STORE: algo.update()    # RISC's order: learn from them, then pick the next goal
+    wants_reset = algo.observe(next_obs, hard_reset)   # controllers: switch phases, pick goals; (E,) bool
     for members that hit H_T or want a reset: obs = env.reset(); algo.on_reset(obs, mask)
 
 and for evaluation ``algo.eval_act(obs)`` (deterministic forward policy on the eval env's own
@@ -68,6 +71,9 @@ class Demos(Protocol):
 
 #: the transition arrays of a demo set, in EARL's file layout (``harness.data`` reads and checks exactly these)
 DEMO_FIELDS = ("observations", "actions", "rewards", "terminals", "next_observations")
+
+#: where the loop calls :meth:`Algorithm.update` in a training step (``Algorithm.update_at``)
+AFTER_ACT, AFTER_STORE = "after act", "after store"
 
 #: a member's phase (forward/backward controllers) or direction (goal-conditioned methods): the task, or the reset
 FORWARD, BACKWARD = 0, 1
@@ -229,6 +235,10 @@ class Algorithm(ABC):
     #: as on kitchen and minitaur). False: learns from 1[success] of the goals it sets, which on an env with a dense
     #: reward is not what EARL trained on; the harness refuses it there.
     task_reward: ClassVar[bool] = False
+    #: where the loop calls :meth:`update`: :data:`AFTER_ACT` (once the actions are chosen, before the env moves, as
+    #: MEDAL's code does) or :data:`AFTER_STORE` (once the new transitions are stored, before :meth:`observe` switches
+    #: phases and picks goals with the updated critic, as RISC's code does)
+    update_at: ClassVar[str] = AFTER_ACT
 
     @classmethod
     def requires_demos(cls, cfg: AlgoConfig) -> bool:
@@ -250,12 +260,20 @@ class Algorithm(ABC):
 
     @abstractmethod
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """Training actions for all members, (E, act_dim) float32 in [-1, 1]; may update."""
+        """Training actions for all members, (E, act_dim) float32 in [-1, 1]."""
+
+    def update(self) -> None:
+        """One learning step of every member (sample, losses, optimizers); called once per training step at
+        :attr:`update_at`. An algorithm decides itself whether it learns yet (a seed phase, say)."""
+
+    def store(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> None:
+        """Record the transitions just taken (the last :meth:`act`'s actions, ``next_obs`` (E, obs_dim)).
+        ``hard_reset`` (E,) bool: the env hit H_T and will be reset."""
 
     @abstractmethod
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
-        """Record the transitions just taken. ``hard_reset`` (E,) bool: the env hit H_T and will
-        be reset. Returns (E,) bool: members whose env the algorithm wants reset (episodic)."""
+        """The controllers after the step (:meth:`store` has recorded it): end phases or episodes, pick goals.
+        Returns (E,) bool: members whose env the algorithm wants reset (episodic)."""
 
     @abstractmethod
     def eval_act(self, obs: np.ndarray) -> np.ndarray:

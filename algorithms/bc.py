@@ -79,10 +79,13 @@ class BC(Algorithm):
         pass
 
     def act(self, obs: np.ndarray) -> np.ndarray:
-        """One gradient step (until ``grad_steps``); the env gets zero actions."""
+        """The env gets zero actions (BC learns from the demos only)."""
+        return np.zeros((self.E, self.task.act_dim), dtype=np.float32)
+
+    def update(self) -> None:
+        """One gradient step on demo pairs (until ``grad_steps``)."""
         if not self.cfg.grad_steps or self.grad_step < self.cfg.grad_steps:
             self.log.add("bc/", {"loss": self.train_step()})
-        return np.zeros((self.E, self.task.act_dim), dtype=np.float32)
 
     def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
         return np.zeros(self.E, dtype=bool)

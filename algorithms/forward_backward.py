@@ -117,15 +117,19 @@ class ForwardBackward(Algorithm):
                 a_b = self.backward.act(ot, mask=bwd)
                 a = torch.where(torch.as_tensor(fwd, device=self.device)[:, None], a_f, a_b)
             self._action = a.cpu().numpy()
-        if self.step >= self.cfg.seed_steps:
-            self._update(fwd, bwd)
         return self._action
 
     def eval_act(self, obs: np.ndarray) -> np.ndarray:
         return self.forward.act(torch.as_tensor(obs, device=self.device), deterministic=True).cpu().numpy()
 
-    def _update(self, fwd: np.ndarray, bwd: np.ndarray) -> None:
+    def update(self) -> None:
+        """Past the seed phase: the acting controller of each member learns (forward: the task reward; backward:
+        :meth:`backward_reward`), then :meth:`learn_extra` (MEDAL's discriminator, R3L's RND, ...)."""
+        if self.step < self.cfg.seed_steps:
+            return
         cfg, t = self.cfg, self.timers
+        fwd = self.phase == FORWARD
+        bwd = ~fwd
         if fwd.any():
             with t("buffer"):
                 batch = self.fwd_buf.sample(cfg.batch_size, mask=fwd)
@@ -141,9 +145,10 @@ class ForwardBackward(Algorithm):
                 self.log.add("backward/", self.backward.update(bwd_batch, bwd, reward=reward), bwd)
         self.learn_extra(bwd_batch, bwd)
 
-    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
-        sd = self.task.state_dim
-        no = with_goal(next_obs, self.goal, sd)
+    def store(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> None:
+        """The step into the acting controller's buffer, terminal on success (forward; backward where it ends on
+        success), truncated at a switch or a hard reset."""
+        no = with_goal(next_obs, self.goal, self.task.state_dim)
         success = np.asarray(self.task.is_success(no), dtype=bool)
         fwd = self.phase == FORWARD
         bwd = ~fwd
@@ -157,6 +162,15 @@ class ForwardBackward(Algorithm):
                     buf.add(self._action, success.astype(np.float32), no, terminal, truncated, m)
             if bwd.any():
                 self.on_backward_states(no, bwd)
+        self._stored = terminal, switch
+
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        """Phase switches: at success or after ``switch_every`` steps, to the other controller with its next goal."""
+        sd = self.task.state_dim
+        terminal, switch = self._stored
+        fwd = self.phase == FORWARD
+        bwd = ~fwd
+        with self.timers("buffer"):
             # switches (hard resets are handled by on_reset after the env reset)
             sw = switch & ~hard_reset
             to_bwd, to_fwd = sw & fwd, sw & bwd

@@ -27,7 +27,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from algorithms.api import FORWARD, Algorithm, DemoSet, Task, demo_arrays, setting
+from algorithms.api import AFTER_STORE, FORWARD, Algorithm, DemoSet, Task, demo_arrays, setting
 from algorithms.common import (
     SACAlgoConfig,
     Timers,
@@ -134,6 +134,7 @@ class GoalConditioned(Algorithm):
     """One goal-conditioned SAC agent for both directions; see the module docstring."""
 
     Config = GCConfig
+    update_at = AFTER_STORE  # RISC's order: the critic learns from the step before the next goal is picked
 
     def __init__(self, task: Task, demos: DemoSet, cfg: GCConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
@@ -227,7 +228,9 @@ class GoalConditioned(Algorithm):
             self._switch = self.early_switch(values)
         return self._action
 
-    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+    def store(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> None:
+        """The step, terminal on success where success ends the phase, truncated at the phase's step limit, an early
+        switch or a hard reset; then :meth:`stored` (relabelling)."""
         no = with_goal(next_obs, self.goal, self.task.state_dim)
         success = np.asarray(self.task.is_success(no), dtype=bool)
         terminal = success if self.success_ends_phase() else np.zeros_like(success)
@@ -239,12 +242,22 @@ class GoalConditioned(Algorithm):
         with self.timers("buffer"):
             self.buffer.add(self._action, success.astype(np.float32), no, terminal, truncated)
             self.stored(self._obs, no, end)
-        if self.step >= self.cfg.seed_steps:
-            with self.timers("buffer"):
-                batch = self.buffer.sample(self.cfg.batch_size)
-            with self.timers("update"):
-                self.update_aux(batch)
-                self.log.add("sac/", self.sac.update(batch))
+        self._stored = success, end
+
+    def update(self) -> None:
+        """Past the seed phase: :meth:`update_aux` (RISC's success critic, VaPRL's value critic), then one SAC update,
+        on one replay batch that already holds the step just taken."""
+        if self.step < self.cfg.seed_steps:
+            return
+        with self.timers("buffer"):
+            batch = self.buffer.sample(self.cfg.batch_size)
+        with self.timers("update"):
+            self.update_aux(batch)
+            self.log.add("sac/", self.sac.update(batch))
+
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        """Phase ends: flip direction and pick the next goal (with the critic just updated)."""
+        success, end = self._stored
         fwd = self.direction == FORWARD
         self.log.add_host("phase/", {"backward": ~fwd})
         self.log.add_host("phase/", {"forward_end_success": success, "forward_early_switch": self._switch & ~success},

@@ -96,13 +96,18 @@ class Naive(Algorithm):
                 starts = self.episode_steps == 0
                 if self._log_return and not seeding and starts.any():
                     self.q_start[starts] = self.agent.q_value(o, action).cpu().numpy()[starts]
-        if not seeding:
-            with self.timers("buffer"):
-                batch = self.buf.sample(cfg.batch_size)
-            with self.timers("update"):
-                self.log.add("sac/", self.agent.update(batch, reward=self.reward(batch)))
-            self.learn_extra(batch)
         return self._action
+
+    def update(self) -> None:
+        """One SAC update on a replay batch (rewards from :meth:`reward`), then :meth:`learn_extra`; none in the seed
+        phase."""
+        if self.step < self.cfg.seed_steps:
+            return
+        with self.timers("buffer"):
+            batch = self.buf.sample(self.cfg.batch_size)
+        with self.timers("update"):
+            self.log.add("sac/", self.agent.update(batch, reward=self.reward(batch)))
+        self.learn_extra(batch)
 
     def metrics(self) -> dict[str, np.ndarray]:
         """sac/*: the agent's update diagnostics; episode/end_success: share of (pseudo-)episodes ending in success;
@@ -110,9 +115,8 @@ class Naive(Algorithm):
         ended (those started after the seed phase)."""
         return self.log.pop()
 
-    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
-        sd = self.task.state_dim
-        no = with_goal(next_obs, self.goal, sd)
+    def store(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> None:
+        no = with_goal(next_obs, self.goal, self.task.state_dim)
         success = np.asarray(self.task.is_success(no), dtype=bool)
         # the task reward: 1[success] (EARL's sparse envs), or the env's dense reward (minitaur: EnvSpec.reward_fn)
         reward = np.asarray(self.task.compute_reward(no), dtype=np.float32)
@@ -122,6 +126,12 @@ class Naive(Algorithm):
         truncated = (cut | hard_reset) & ~terminal
         with self.timers("buffer"):
             self.buf.add(self._action, reward, no, terminal, truncated)
+        self._stored = reward, terminal, cut
+
+    def observe(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> np.ndarray:
+        """Episode ends: cut (a fresh task goal, a new segment) or, episodic, ask the loop for a reset."""
+        sd = self.task.state_dim
+        reward, terminal, cut = self._stored
         self.log.add_host("episode/", {"end_success": terminal}, cut | hard_reset)
         self._log_q_and_return(reward, cut | hard_reset)
         self.step += 1

@@ -40,7 +40,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from algorithms.api import Algorithm
+from algorithms.api import AFTER_ACT, AFTER_STORE, Algorithm
 from harness.data import disk_full
 from harness.env_pool import LocalEnvs, WorkerEnvs, make_envs
 from harness.plan import RunSpec
@@ -114,16 +114,22 @@ class Interaction:
         algo.on_reset(self.obs, np.ones(len(self.envs), dtype=bool))
 
     def step(self, algo: Algorithm, step: int | None = None) -> None:
-        """act -> env step -> observe -> reset the members that hit H_T or asked for a reset. ``step`` (the
-        protocol step being taken) only names where a :class:`DivergedError` happened."""
+        """act -> (update) -> env step -> store -> (update) -> observe -> reset the members that hit H_T or asked
+        for a reset; the update where the algorithm's ``update_at`` says (algorithms/api.py). ``step`` (the protocol
+        step being taken) only names where a :class:`DivergedError` happened."""
         actions = algo.act(self.obs)
         check_actions(actions, self.seeds, "in training" + (f" at step {step:,}" if step is not None else ""))
+        if algo.update_at == AFTER_ACT:
+            algo.update()  # MEDAL's order: learn before the env moves
         t = time.perf_counter() if self.timed else 0.0
         next_obs, rewards, hard, _ = self.envs.step(actions)  # a fresh array each step: algorithms may keep it
         next_obs = next_obs.astype(self.obs.dtype, copy=False)
         if self.timed:
             self.env_seconds += time.perf_counter() - t
         self.cum_reward += rewards
+        algo.store(next_obs, hard)
+        if algo.update_at == AFTER_STORE:
+            algo.update()  # RISC's order: learn from the transition just stored, then pick goals with the new critic
         reset = hard | algo.observe(next_obs, hard)
         if reset.any():
             idx = np.flatnonzero(reset)
@@ -239,9 +245,9 @@ class Every:
 
 class TrainingRun:
     """One group's training under the EARL protocol: resume or start, then step, log, evaluate and checkpoint on
-    their schedules until ``spec.steps``. Each training step is ``Interaction.step``: act (MEDAL-family methods
-    update here, before the env moves, as MEDAL's code does), env step, observe (goal-conditioned methods update
-    here, after storing the transition, as RISC's code does), resets."""
+    their schedules until ``spec.steps``. Each training step is ``Interaction.step``: act, the update (MEDAL-family
+    methods: here, before the env moves, as MEDAL's code does), env step, store, the update (goal-conditioned
+    methods: here, before the next goal is picked, as RISC's code does), observe, resets."""
 
     def __init__(self, spec: RunSpec, algo: Algorithm, inter: Interaction, eval_envs: LocalEnvs | WorkerEnvs,
                  on_progress: Callable[[Progress], None] | None, closers: list):

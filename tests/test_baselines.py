@@ -15,6 +15,7 @@ from algorithms.oracle import Oracle, OracleConfig
 from algorithms.r3l import R3L, R3LConfig, RunningMeanStd
 from harness.data import load_demos
 from harness.envs import get_spec
+from tests.stepping import take_step
 
 from .conftest import requires_data, rollout_actions
 
@@ -40,8 +41,7 @@ def _obs(state, goal):
 
 
 def _step(m, obs, next_obs, hard=False):
-    m.act(obs)
-    return m.observe(next_obs, np.array([hard]))
+    return take_step(m, obs, next_obs, np.array([hard]))
 
 
 def _last(buf, field):
@@ -140,9 +140,10 @@ def test_bc_loss_decreases_to_near_zero_on_the_demos(demos):
     m = BC(SPEC, demos, BCConfig(batch_size=256), [0], torch.device("cpu"))
     all_pairs = m.data.data["x"][:, : m.data.size[0]]
     first = m.loss(all_pairs).item()
+    o = np.zeros((1, 12), np.float32)
     for _ in range(400):
-        action = m.act(np.zeros((1, 12), np.float32))
-    assert (action == 0).all() and m.grad_step == 400
+        take_step(m, o, o, np.zeros(1, bool))  # one gradient step per training step, in update
+    assert (m.act(o) == 0).all() and m.grad_step == 400
     final = m.loss(all_pairs).item()
     assert final < 0.05 and final < first / 10
     obs = demos.forward.observations[:5]
@@ -179,6 +180,8 @@ def test_oracle_logs_q_at_each_episode_start_beside_the_discounted_return(demos)
     assert len(calls) == 1
     np.testing.assert_array_equal(calls[0][0].numpy(), o)
     np.testing.assert_array_equal(calls[0][1].numpy(), action)
+    m.update()
+    m.store(o, np.zeros(1, bool))
     assert not m.observe(o, np.zeros(1, bool))[0]
     _step(m, o, o)
     assert _step(m, o, win)[0] and len(calls) == 1  # success on the episode's third step

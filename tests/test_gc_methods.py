@@ -38,6 +38,7 @@ from algorithms.vaprl_curriculum import (
 )
 from harness.data import Demos, load_demos
 from harness.envs import get_spec
+from tests.stepping import take_step
 
 from .conftest import requires_data
 
@@ -139,16 +140,14 @@ def test_risc_phases_goals_and_flags():
     assert r.direction[0] == FORWARD and any(np.allclose(r.goal[0], g) for g in spec.goal_states)
     n0 = r.buffer.size[0]
     for _ in range(5):
-        r.act(far)
-        r.observe(far, np.zeros(1, bool))
+        take_step(r, far, far, np.zeros(1, bool))
     assert r.direction[0] == BACKWARD and np.allclose(r.goal[0], spec.initial_states[0])
     d = r.buffer.data
     assert d["truncated"][0, n0 + 4] and not d["terminal"][0, n0 + 4]  # phase limit: truncated, not terminal
     assert d["first"][0, n0 + 5]  # the backward phase is a new segment
     # reaching the backward goal: terminal, flip to forward
     home = np.concatenate([spec.initial_states[0], spec.goal_states[0]]).astype(np.float32)[None]
-    r.act(far)
-    r.observe(home, np.zeros(1, bool))
+    take_step(r, far, home, np.zeros(1, bool))
     assert d["terminal"][0, n0 + 6] and d["reward"][0, n0 + 6] == 1.0 and r.direction[0] == FORWARD
 
 

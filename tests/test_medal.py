@@ -8,6 +8,7 @@ from algorithms.core.discriminator import discriminator_reward
 from algorithms.medal import MEDAL, MEDALConfig, demo_states, rho0_states
 from harness.data import load_demos
 from harness.envs import get_spec
+from tests.stepping import take_step
 
 from .conftest import requires_data, rollout_actions
 
@@ -59,8 +60,7 @@ def test_switching_rules_and_goals():
     assert m.phase[0] == FORWARD and np.array_equal(m.goal[0], spec.goal_states[1])
     no_hard = np.zeros(1, bool)
     for t in range(5):  # forward phase: 5 steps, no success -> switch to backward
-        m.act(o)
-        m.observe(o, no_hard)
+        take_step(m, o, o, no_hard)
     assert m.phase[0] == BACKWARD and m.phase_steps[0] == 0
     g_b = m.goal[0].copy()  # a freshly drawn task goal ...
     assert any(np.array_equal(g_b, g) for g in spec.goal_states)
@@ -68,17 +68,14 @@ def test_switching_rules_and_goals():
     at_goal = _obs(spec, g_b, g_b)
     for t in range(5):  # backward never ends early, even "at the goal"
         assert m.phase[0] == BACKWARD
-        m.act(at_goal)
-        m.observe(at_goal, no_hard)
+        take_step(m, at_goal, at_goal, no_hard)
     assert m.phase[0] == FORWARD and np.array_equal(m.goal[0], g_b)  # goal kept for the forward phase
     assert int(m.neg_buf.num_states[0]) == 6
-    m.act(o)
-    m.observe(at_goal, no_hard)  # forward success: immediate switch, stored as terminal
+    take_step(m, o, at_goal, no_hard)  # forward success: immediate switch, stored as terminal
     assert m.phase[0] == BACKWARD
     k = m.fwd_buf.size[0] - 1
     assert bool(m.fwd_buf.data["terminal"][0, k]) and not bool(m.fwd_buf.data["truncated"][0, k])
-    m.act(o)
-    m.observe(o, np.ones(1, bool))  # hard reset: segment truncated, then a forward phase with the env's goal
+    take_step(m, o, o, np.ones(1, bool))  # hard reset: segment truncated, then a forward phase with the env's goal
     k = m.bwd_buf.size[0] - 1
     assert bool(m.bwd_buf.data["truncated"][0, k])
     m.on_reset(_obs(spec, spec.initial_states[0], spec.goal_states[3]), np.ones(1, bool))
@@ -93,8 +90,7 @@ def test_update_schedule_active_controller_only():
     phases = []
     for t in range(100):
         phases.append(m.phase[0])
-        m.act(o)
-        m.observe(o, np.zeros(1, bool))
+        take_step(m, o, o, np.zeros(1, bool))
     phases = np.array(phases)
     updating = np.arange(100) >= 40
     n_fwd = int(((phases == FORWARD) & updating).sum())
@@ -121,8 +117,7 @@ def test_backward_update_uses_current_discriminator_reward(monkeypatch):
     o = _obs(spec, np.array([1.0, 1.0, 2.5, 0.0, -1, -1]), spec.goal_states[0])
     m.on_reset(o, np.ones(1, bool))
     for _ in range(7):
-        m.act(o)
-        m.observe(o, np.zeros(1, bool))
+        take_step(m, o, o, np.zeros(1, bool))
     assert "reward" in seen
     torch.testing.assert_close(seen["reward"], seen["expected"])
     p = torch.tensor([0.0, 0.5, 1.0])
@@ -159,16 +154,13 @@ def test_c_visited_is_the_discriminator_on_the_backward_states():
     o = _obs(spec, np.array([1.0, 1.0, 2.5, 0.0, -1, -1]), spec.goal_states[0])
     m.on_reset(o, np.ones(1, bool))
     for _ in range(4):  # forward steps only
-        m.act(o)
-        m.observe(o, np.zeros(1, bool))
+        take_step(m, o, o, np.zeros(1, bool))
     assert np.isnan(m.metrics().get("discriminator/c_visited", np.array([np.nan]))[0])
-    m.act(o)
-    m.observe(o, np.zeros(1, bool))  # the switch: the backward FIRST state [s, new goal] is a negative
+    take_step(m, o, o, np.zeros(1, bool))  # the switch: the backward FIRST state [s, new goal] is a negative
     visited = [with_goal_row(o, m.goal[0], spec.state_dim)]
     s2 = _obs(spec, np.array([-1.0, 0.5, 0.0, 1.0, 0, 0]), spec.goal_states[2])
     for _ in range(3):
-        m.act(s2)
-        m.observe(s2, np.zeros(1, bool))
+        take_step(m, s2, s2, np.zeros(1, bool))
         visited.append(with_goal_row(s2, m.goal[0], spec.state_dim))
     c = m.disc.prob(torch.as_tensor(np.stack(visited))[None])[0].mean()
     np.testing.assert_allclose(m.metrics()["discriminator/c_visited"][0], float(c), rtol=1e-6)

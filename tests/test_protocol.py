@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from algorithms.api import AlgoConfig, Algorithm
+from algorithms.api import AFTER_STORE, AlgoConfig, Algorithm
 from harness.envs import get_spec, make_env
 from harness.protocol import RunSpec, eval_seed, evaluate, train
 from harness.results import load, load_train
@@ -326,3 +326,51 @@ def test_a_full_disk_is_named_and_the_run_resumes_to_the_same_rows(tmp_path, mon
     assert run_group(spec, "test") is None  # resumed from the checkpoint at 100
     pd.testing.assert_frame_equal(_comparable(load(tmp_path / "ref")), _comparable(load(tmp_path / "full")))
     pd.testing.assert_frame_equal(_comparable(load_train(tmp_path / "ref")), _comparable(load_train(tmp_path / "full")))
+
+
+class HookOrder(Scripted):
+    """Records the hooks the loop calls, in order."""
+
+    def __init__(self, *a, **k):
+        super().__init__(*a, **k)
+        self.calls: list[str] = []
+
+    def on_reset(self, obs, mask):
+        self.calls.append("on_reset")
+        super().on_reset(obs, mask)
+
+    def act(self, obs):
+        self.calls.append("act")
+        return super().act(obs)
+
+    def update(self):
+        self.calls.append("update")
+
+    def store(self, next_obs, hard_reset):
+        self.calls.append("store")
+
+    def observe(self, next_obs, hard_reset):
+        self.calls.append("observe")
+        return super().observe(next_obs, hard_reset)
+
+
+class HookOrderAfterStore(HookOrder):
+    update_at = AFTER_STORE
+
+
+@pytest.mark.parametrize("cls, order", [(HookOrder, ["act", "update", "store", "observe"]),
+                                        (HookOrderAfterStore, ["act", "store", "update", "observe"])])
+def test_the_loop_calls_update_where_the_algorithm_says_and_tests_step_the_same(tmp_path, cls, order):
+    """Issue 54: the update is the loop's call, once per training step, after act (MEDAL's order: before the env moves)
+    or after store (RISC's order: before observe picks goals); tests/stepping.py's take_step keeps the loop's order."""
+    from tests.stepping import take_step
+
+    spec = _spec(tmp_path, seeds=[0], steps=20, eval_every=10, checkpoint_every=10)
+    algo = cls(get_spec("tabletop_manipulation"), None, _Cfg(), spec.seeds, "cpu")
+    train(spec, algo)
+    steps = [c for c in algo.calls if c != "on_reset"]
+    assert steps == order * 20 and algo.calls[0] == "on_reset"
+    algo.calls.clear()
+    obs = make_env("tabletop_manipulation").reset(seed=0)[0][None].astype(np.float32)
+    take_step(algo, obs, obs, np.zeros(1, bool))
+    assert algo.calls == order

@@ -1,7 +1,7 @@
 """``harness bench train algo=medal env=sawyer_door members=E [steps=N] [device=cpu] [env_workers=N] [seed_steps=N]
 [update=default|static|compiled]``.
 
-Training throughput after the seed phase: the protocol's own step (act -> env -> observe) with
+Training throughput after the seed phase: the protocol's own step (act, update, env step, store, observe) with
 updates on, timed over ``steps`` steps, three times (median). Prints steps/s per member and in
 aggregate (E x per member), and where the time goes (env, act, update, discriminator, buffer,
 other; with ``env_workers`` the env share is the wait for the workers). Evaluation is not included (it is a fixed ~3% of steps for EARL's schedule).
