@@ -91,7 +91,8 @@ TABLE1_BUDGET = {name: e.default_steps for name, e in ENVS.items() if e.in_table
 EARLY = "†"  # marks a number taken at less than half of TABLE1_BUDGET
 
 
-def _steps(n: float) -> str:
+def short_steps(n: float) -> str:
+    """1.5M, 540k, 400: a step count as tables write it."""
     return f"{n / 1e6:g}M" if n >= 1e6 else f"{n / 1e3:g}k" if n >= 1e3 else f"{n:g}"
 
 
@@ -130,7 +131,7 @@ def table1_display(t: pd.DataFrame, digits: int = 2, bold: Callable[[str], str] 
             if s != "–":
                 s = bold(s) if r["ours_best"] else s
                 early = r["step"] < 0.5 * TABLE1_BUDGET.get(env, 0)
-                s += f" @{_steps(r['step'])}" if mixed or early else ""  # an early number always says its step
+                s += f" @{short_steps(r['step'])}" if mixed or early else ""  # an early number always says its step
                 s += EARLY if early else ""
             ours.append(s)
             s = _fmt_ms(r["paper_mean"], r["paper_se"], digits)
@@ -154,7 +155,7 @@ def table1_markdown(t: pd.DataFrame, digits: int = 2, published: bool = True) ->
 
 
 EARLY_NOTE = (f"{EARLY} taken before half of the Table-1 budget ("
-              + ", ".join(f"{_steps(n)} {env_label(e).lower()}" for e, n in TABLE1_BUDGET.items())
+              + ", ".join(f"{short_steps(n)} {env_label(e).lower()}" for e, n in TABLE1_BUDGET.items())
               + " steps), at the step after @: not a final number.")
 
 

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+import pandas as pd
 import streamlit as st
 
 from harness import analysis as A
 from harness.dashboard.charts import curves_grid
 from harness.dashboard.data import Sel, aggregates_for, curves_for, filtered, load_diagnostics, scores_for
 from harness.dashboard.results_tabs import step_option
-from harness.labels import ABLATIONS, algo_label, env_label, order_algos
+from harness.labels import ABLATIONS, algo_label, env_label, order_algos, order_envs
 from harness.stats import common_envs, probability_of_improvement, scores_by_task
+from harness.tables import EARLY, EARLY_NOTE, TABLE1_BUDGET, short_steps
 
 
 def tab_aggregates(root, sig, sel: Sel) -> None:
@@ -43,6 +45,8 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
     st.altair_chart(chart, width="stretch", height=40 * len(view) + 80)
     st.dataframe(view[["method", "iqm", "iqm_lo", "iqm_hi", "mean", "mean_lo", "mean_hi", "n_envs", "n_runs"]],
                  hide_index=True)
+    st.caption("Scores from step " + steps_used(scores[scores["algo"].isin(chosen) & scores["env"].isin(shared)])
+               + f". {EARLY_NOTE}")
 
     st.subheader("Probability of improvement")
     if len(have) < 2:
@@ -60,6 +64,18 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
     st.metric(f"P({algo_label(x)} > {algo_label(y)})", f"{p:.2f}", help="average over envs of "
               "P(X_run > Y_run) + ½ P(=); 95% stratified-bootstrap CI")
     st.caption(f"95% CI [{lo:.2f}, {hi:.2f}] over {len(envs_xy)} env(s): {', '.join(env_label(e) for e in envs_xy)}.")
+
+
+def steps_used(scores: pd.DataFrame) -> str:
+    """``MEDAL: Tabletop Organization 1.5M, Sawyer Peg 540k†; ...``: the step of each method's scores per env (the
+    largest of its runs), marked where it is before half of the paper's budget."""
+    parts = []
+    for algo in order_algos(scores["algo"].unique()):
+        s = scores[scores["algo"] == algo].groupby("env")["step"].max()
+        s = s[order_envs(s.index)]
+        parts.append(f"{algo_label(algo)}: " + ", ".join(
+            f"{env_label(e)} {short_steps(v)}{EARLY if v < TABLE1_BUDGET.get(e, 0) / 2 else ''}" for e, v in s.items()))
+    return "; ".join(parts)
 
 
 def _mean_se(mean: float, se: float, n: int, step: float) -> str:
