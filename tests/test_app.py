@@ -215,7 +215,7 @@ def test_each_tab_opens_on_its_own_view_and_never_pools_suites(monkeypatch, mixe
     at = run_app(monkeypatch, mixed, "Aggregates")
     agg = at.dataframe[0].value.set_index("method")
     assert list(agg.index) == ["MEDAL"] and agg.loc["MEDAL", "n_runs"] == 5  # 3 tabletop + 2 peg seeds
-    assert any(c.startswith("Scores from step MEDAL: Tabletop Organization 1.5M, Sawyer Peg 400k†.")
+    assert any(c.startswith("Scores from step MEDAL: Tabletop Organization 1.5M, Sawyer Peg 400k†; † before half")
                for c in texts(at, "caption")), texts(at, "caption")  # each number's step, early ones marked
 
     at = run_app(monkeypatch, mixed, "Table 1", suite="all")

@@ -11,7 +11,7 @@ from harness.dashboard.data import Sel, aggregates_for, curves_for, filtered, lo
 from harness.dashboard.results_tabs import step_option
 from harness.labels import ABLATIONS, algo_label, env_label, order_algos, order_envs
 from harness.stats import common_envs, probability_of_improvement, scores_by_task
-from harness.tables import EARLY, EARLY_NOTE, TABLE1_BUDGET, short_steps
+from harness.tables import EARLY, TABLE1_BUDGET, short_steps
 
 
 def tab_aggregates(root, sig, sel: Sel) -> None:
@@ -46,7 +46,7 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
     st.dataframe(view[["method", "iqm", "iqm_lo", "iqm_hi", "mean", "mean_lo", "mean_hi", "n_envs", "n_runs"]],
                  hide_index=True)
     st.caption("Scores from step " + steps_used(scores[scores["algo"].isin(chosen) & scores["env"].isin(shared)])
-               + f". {EARLY_NOTE}")
+               + f"; {EARLY} before half of the paper's Table-1 budget: not a final number.")
 
     st.subheader("Probability of improvement")
     if len(have) < 2:
