@@ -19,7 +19,9 @@ method (below) leaves with probability at most ``alpha``; the published steps ar
 picks one published seed and, in every window, takes the published window-mean distribution's quantile (a Beta fitted
 by moments, as the final-window criterion's model) at that seed's rank in the window, jittered uniformly within its
 rank bin. A seed that was low stays low across windows (the published dips and late starts persist as they do), and
-draws still fall between and beyond the published values. For the first-success step, a simulated seed takes a
+draws still fall between and beyond the published values. Where the metric is a return (kitchen, minitaur:
+``CurveRule.bounded`` False) the window distribution is a Normal fitted by moments instead of the Beta, the band's
+``widen`` is in return units, and there is no first-success check (a return has no success threshold). For the first-success step, a simulated seed takes a
 published seed's step plus Gaussian noise (Silverman's bandwidth over the published steps; a censored step stays
 censored). Both probabilities are Monte Carlo estimates with a fixed seed, so the allowance is a pure function of the
 published data, the budget, the number of seeds and the rule.
@@ -46,6 +48,7 @@ class CurveRule:
     alpha: float = ALPHA
     fs_widen: int = FS_WIDEN
     eval_every: int = 10_000
+    bounded: bool = True  # the metric is a success rate in [0, 1] (Beta model, first success); False: a return
 
 
 def window_table(curves: pd.DataFrame, steps: int, eval_every: int = 10_000) -> pd.DataFrame:
@@ -69,18 +72,28 @@ def published_bands(published: pd.DataFrame, steps: int, widen: float) -> pd.Dat
                          "lower": t.min(axis=1) - widen, "upper": t.max(axis=1) + widen})
 
 
-def _beta_quantiles(values: np.ndarray, u: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Quantiles ``u`` of a Beta fitted by moments to ``values`` (clipped as the final-window model does)."""
+def window_model(values: np.ndarray, rng: np.random.Generator, size, bounded: bool = True) -> np.ndarray:
+    """Draws of a seed's window mean from the distribution fitted by moments to the published per-seed window means
+    ``values``: a Beta for a success rate (values clipped to [0.005, 0.995], as the final-window model does), a Normal
+    for a return (``bounded`` False)."""
+    if not bounded:
+        return rng.normal(values.mean(), values.std(ddof=1) if len(values) > 1 else 0.0, size=size)
     m = np.clip(values, 0.005, 0.995)
     mu, var = m.mean(), max(m.var(ddof=1), 1e-4)
     k = max(mu * (1 - mu) / var - 1, 1e-3)
-    sample = np.sort(rng.beta(mu * k, (1 - mu) * k, size=4096))
+    return rng.beta(mu * k, (1 - mu) * k, size=size)
+
+
+def _quantiles(values: np.ndarray, u: np.ndarray, rng: np.random.Generator, bounded: bool) -> np.ndarray:
+    """Quantiles ``u`` of :func:`window_model` fitted to ``values``."""
+    sample = np.sort(window_model(values, rng, 4096, bounded))
     pos = u * (len(sample) - 1)  # np.quantile's linear rule, indexed directly
     i = np.minimum(pos.astype(np.int64), len(sample) - 2)
     return sample[i] + (pos - i) * (sample[i + 1] - sample[i])
 
 
-def faithful_windows(published: pd.DataFrame, steps: int, n: int, draws: int = DRAWS, seed: int = 0) -> np.ndarray:
+def faithful_windows(published: pd.DataFrame, steps: int, n: int, draws: int = DRAWS, seed: int = 0,
+                     bounded: bool = True) -> np.ndarray:
     """Simulated seed-means of a faithful method with ``n`` seeds: (draws, checked windows)."""
     rng = np.random.default_rng(seed)
     t = window_table(published, steps)
@@ -97,7 +110,7 @@ def faithful_windows(published: pd.DataFrame, steps: int, n: int, draws: int = D
         order[have] = np.lexsort((rng.random(m), vals[have])).argsort()
         r = order[pick]
         u = np.where(r >= 0, (r + rng.random(r.shape)) / m, rng.random(r.shape))
-        out[:, k] = _beta_quantiles(vals[have], u, rng).mean(axis=1)
+        out[:, k] = _quantiles(vals[have], u, rng, bounded).mean(axis=1)
     return out
 
 
@@ -121,7 +134,7 @@ def _allowance(published: pd.DataFrame, steps: int, n: int, rule: CurveRule) -> 
     bands = published_bands(published, steps, rule.widen)
     if bands.empty:
         return 0, 0.0
-    sim = faithful_windows(published, steps, n)
+    sim = faithful_windows(published, steps, n, bounded=rule.bounded)
     out = ((sim < bands["lower"].to_numpy()) | (sim > bands["upper"].to_numpy())).sum(axis=1)
     a = 0
     while (p := float((out > a).mean())) > rule.alpha:  # ends: no draw has more than len(bands) windows out
@@ -193,6 +206,10 @@ def whole_curve_verdict(ours: pd.DataFrame, published: pd.DataFrame, steps: int,
     status = "running" if not done else ("pass" if len(out) <= a else "fail")
     if not done and len(out) > a:
         status = "fail"  # more windows out than allowed already: nothing to come can mend it
+    verdict = {"status": status, "windows": len(bands), "allowance": a, "p_false_fail": p, "out": out,
+               "reached": reached, "furthest": furthest}
+    if not rule.bounded:  # a return: no success threshold, so no first-success check
+        return {**verdict, "first_success_status": "n/a", "first_success": [], "first_success_published": []}
     fsb = first_success_band(published, steps, rule, len(seeds))
     censor = steps + rule.eval_every
     fs = first_success(ours, steps, rule.eval_every).reindex(list(seeds)).fillna(censor)
@@ -209,8 +226,7 @@ def whole_curve_verdict(ours: pd.DataFrame, published: pd.DataFrame, steps: int,
     else:
         fs_status = "running"
     fs_mean = most if least == most else float("nan")
-    return {"status": status, "windows": len(bands), "allowance": a, "p_false_fail": p, "out": out,
-            "reached": reached, "furthest": furthest, "first_success": [None if v >= censor else int(v) for v in fs],
+    return {**verdict, "first_success": [None if v >= censor else int(v) for v in fs],
             "first_success_mean": fs_mean, "first_success_least": float(least), "first_success_band": (fsb["lower"], fsb["upper"]),
             "first_success_published": fsb["published"], "first_success_p_false_fail": fsb["p_false_fail"],
             "first_success_status": fs_status, "still_running": [at[s] < steps for s in seeds]}
@@ -235,6 +251,8 @@ def whole_curve_text(v: dict) -> str:
 
 
 def first_success_text(v: dict) -> str:
+    if v["first_success_status"] == "n/a":
+        return "n/a: the metric is a return (no success threshold)"
     lo, hi = v["first_success_band"]
     if v["first_success_status"] == "running" and not v["furthest"]:
         return f"not started; accepted mean {max(lo, 0) / 1000:.0f}k-{hi / 1000:.0f}k"

@@ -6,13 +6,15 @@ max over the published seeds). The suite's ``criterion: {widen: w}`` is one rule
 
     pass  when  min - w  <=  mean over our seeds of (each seed's mean deployed success in the window)  <=  max + w
 
-A check is ``running`` until every seed of the cell has all its evaluations in the window. Everything here is pure
+A check is ``running`` until every seed of the cell has all its evaluations in the window. The metric is the one the
+env's published curves measure (:func:`metric_of`): deployed success on the Sawyer tasks and tabletop, the deployed
+return on kitchen and minitaur, where a cell gives its own ``widen`` in return units. Everything here is pure
 (DataFrames in, DataFrames out); :func:`load_ladder` reads the suite file.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
@@ -20,9 +22,17 @@ import pandas as pd
 from algorithms.api import parse_int
 from harness import curve_checks as C
 from harness.curve_checks import CurveRule
+from harness.envs import ENVS
 from harness.suites import ConfigError, load_suite
 
 METRIC = "deployed_success"
+
+
+def metric_of(env: str) -> str:
+    """What ``env``'s published curves measure (``EnvInfo.published_metric``): ``deployed_success``, or
+    ``deployed_return`` (kitchen, minitaur)."""
+    info = ENVS.get(env)
+    return info.published_metric if info is not None else METRIC
 
 
 @dataclass(frozen=True)
@@ -46,6 +56,16 @@ class Cell:
     seeds: tuple[int, ...]
     checks: tuple[Check, ...]
     config: tuple[tuple[str, object], ...] = ()  # a variant's config overrides, (key, value) pairs
+    widen: float | None = None  # the band's widening in the metric's units; None: the suite's criterion widen
+
+    @property
+    def metric(self) -> str:
+        return metric_of(self.env)
+
+    @property
+    def bounded(self) -> bool:
+        """The metric is a success rate in [0, 1] (else a return, unbounded)."""
+        return self.metric == METRIC
 
 
 @dataclass(frozen=True)
@@ -54,6 +74,13 @@ class Ladder:
     cells: tuple[Cell, ...]
     widen: float
     rule: CurveRule = field(default_factory=CurveRule)  # the whole-curve checks' rule (harness.curve_checks)
+
+    def widen_of(self, cell: Cell) -> float:
+        return self.widen if cell.widen is None else cell.widen
+
+    def rule_of(self, cell: Cell) -> CurveRule:
+        """The whole-curve rule of one cell: the suite's, in the cell's metric (its widen; Normal model for returns)."""
+        return replace(self.rule, widen=self.widen_of(cell), bounded=cell.bounded)
 
 
 def _seed_list(v) -> tuple[int, ...]:
@@ -95,9 +122,21 @@ def load_ladder(suite: str) -> Ladder:
                                   f"{{source, mean, min, max}} ({type(e).__name__}: {e})") from None
             if not 0 <= lo < hi <= int(c["steps"]):
                 raise ConfigError(f"suite {name!r}, cell {n + 1}: window {lo}-{hi} is not inside the budget {c['steps']}")
+        metric = metric_of(str(c["env"]))
+        cell_widen = c.get("widen")
+        if cell_widen is None and metric != METRIC:
+            raise ConfigError(f"suite {name!r}, cell {n + 1}: env {c['env']}'s published curves are {metric}: give the "
+                              "cell its own widen, in return units")
+        if cell_widen is not None:
+            try:
+                cell_widen = float(cell_widen)
+            except (TypeError, ValueError):
+                raise ConfigError(f"suite {name!r}, cell {n + 1}: widen must be a number, got {cell_widen!r}") from None
+            if not (0 <= cell_widen <= (1 if metric == METRIC else float("inf"))):
+                raise ConfigError(f"suite {name!r}, cell {n + 1}: widen {cell_widen:g} is out of range for {metric}")
         cells.append(Cell(str(c.get("name") or c["algo"]), str(c["algo"]), str(c["env"]), int(c["steps"]),
                           _seed_list(c.get("seeds", d.get("seeds", 1))), tuple(checks),
-                          tuple(sorted((c.get("config") or {}).items()))))
+                          tuple(sorted((c.get("config") or {}).items())), cell_widen))
     return Ladder(name, tuple(cells), widen, rule)
 
 
@@ -108,9 +147,9 @@ def window_means(curves: pd.DataFrame, lo: int, hi: int) -> pd.Series:
 
 
 def published_curves(published: pd.DataFrame, check: Check, env: str) -> pd.DataFrame:
-    """The published per-seed deployed-success curves a check compares with: seed, step, value."""
+    """The published per-seed curves a check compares with (in ``env``'s metric): seed, step, value."""
     p = published[(published["source"] == check.source) & (published["env"] == env)
-                  & (published["algo"] == check.algo) & (published["metric"] == METRIC)]
+                  & (published["algo"] == check.algo) & (published["metric"] == metric_of(env))]
     return p[["seed", "step", "value"]]
 
 
@@ -121,9 +160,9 @@ def cell_rows(ours: pd.DataFrame, suite: str, cell: Cell) -> pd.DataFrame:
 
 
 def our_curves(ours: pd.DataFrame, suite: str, cell: Cell) -> pd.DataFrame:
-    """Our per-seed deployed-success curves of a cell: seed, step, value (the cell's seeds only)."""
+    """Our per-seed curves of a cell in its metric: seed, step, value (the cell's seeds only)."""
     o = cell_rows(ours, suite, cell)
-    return o.loc[o["metric"] == METRIC, ["seed", "step", "value"]]
+    return o.loc[o["metric"] == cell.metric, ["seed", "step", "value"]]
 
 
 def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_every: int = 10_000) -> dict:
@@ -138,9 +177,10 @@ def verdict(curves: pd.DataFrame, cell: Cell, check: Check, widen: float, eval_e
     lower, upper = check.min - widen, check.max + widen
     mean = float(per_seed.reindex(list(cell.seeds)).mean()) if len(per_seed) else float("nan")
     # The seed-mean's bounds if every window evaluation still to come scores 0, or every one 1 (success is in [0, 1]):
-    # a running check whose bounds both lie on one side of the band's edges is already decided.
-    least = most = 0.0
-    for s in cell.seeds:
+    # a running check whose bounds both lie on one side of the band's edges is already decided. A return has no
+    # bounds: its check is decided when its window is complete.
+    least, most = (0.0, 0.0) if cell.bounded else (-np.inf, np.inf)
+    for s in cell.seeds if cell.bounded else ():
         w = curves[(curves["seed"] == s) & (curves["step"] > check.lo) & (curves["step"] <= check.hi)]
         missing = len(need - set(w["step"].astype(int)))
         least += w["value"].sum() / (len(w) + missing) / len(cell.seeds)
@@ -201,16 +241,17 @@ def ladder_table(ladder: Ladder, ours: pd.DataFrame, eval_every: int = 10_000,
         whole = {}
         if published is not None:
             try:
-                w = C.whole_curve_verdict(curves, cell_published(published, cell), cell.steps, cell.seeds, ladder.rule)
+                w = C.whole_curve_verdict(curves, cell_published(published, cell), cell.steps, cell.seeds,
+                                          ladder.rule_of(cell))
                 whole = {"curve": C.whole_curve_text(w), "curve_status": w["status"],
                          "first_success": C.first_success_text(w), "first_success_status": w["first_success_status"]}
             except ValueError as e:  # no published curves for this cell: say so, no verdict
                 whole = {"curve": f"none: {e}", "curve_status": "none", "first_success": "none",
                          "first_success_status": "none"}
         for check in cell.checks:
-            v = verdict(curves, cell, check, ladder.widen, eval_every)
+            v = verdict(curves, cell, check, ladder.widen_of(cell), eval_every)
             rows.append({
-                "method": cell.name, "env": cell.env, "budget": cell.steps, "seeds": len(cell.seeds),
+                "method": cell.name, "env": cell.env, "metric": cell.metric, "budget": cell.steps, "seeds": len(cell.seeds),
                 "config": " ".join(f"{k}={_yaml_value(v)}" for k, v in cell.config),
                 "window": f"{check.lo // 1000}k-{check.hi // 1000}k", "lo": check.lo, "hi": check.hi,
                 "published": check.mean, "published_min": check.min, "published_max": check.max,
@@ -226,6 +267,13 @@ def _yaml_value(v) -> str:
     return str(v).lower() if isinstance(v, bool) else str(v)
 
 
+def value_text(x: float, metric: str = METRIC) -> str:
+    """A window mean as the tables show it: a success rate with 2 decimals, a return rounded to a whole number."""
+    if np.isnan(x):
+        return "-"
+    return f"{x:.2f}" if metric == METRIC else f"{x:.0f}"
+
+
 def table_markdown(t: pd.DataFrame) -> str:
     """The ladder as a Markdown table (ours per seed, published mean and per-seed range, verdict); a ``config``
     column when some cell is a variant; the whole-curve verdicts, once per cell, when ``t`` has them."""
@@ -236,14 +284,17 @@ def table_markdown(t: pd.DataFrame) -> str:
     lines = [head, "|" + "---|" * head.count(" | ") + "---|"]
     seen = set()
     for r in t.itertuples():
-        seeds = ", ".join("-" if np.isnan(x) else f"{x:.2f}" for x in r.ours_per_seed)
-        ours = "-" if np.isnan(r.ours) else f"{r.ours:.2f}"
+        metric = getattr(r, "metric", METRIC)
+        f = lambda x: value_text(x, metric)  # noqa: E731
+        seeds = ", ".join(f(x) for x in r.ours_per_seed)
+        ours = f(r.ours)
         config = f"{r.config or '-'} | " if variants else ""
         first = (r.method, r.env, r.config) not in seen
         seen.add((r.method, r.env, r.config))
         extra = (f" {r.curve} | {r.first_success} |" if first else " | |") if whole else ""
-        lines.append(f"| {r.method} | {config}{r.env} | {r.budget / 1e6:g}M | {r.window} | {r.published:.2f} "
-                     f"({r.published_min:.2f}-{r.published_max:.2f}) | {ours} ({seeds}) | {r.verdict} |{extra}")
+        span = f"{f(r.published_min)}{'-' if metric == METRIC else ' to '}{f(r.published_max)}"
+        lines.append(f"| {r.method} | {config}{r.env} | {r.budget / 1e6:g}M | {r.window} | {f(r.published)} "
+                     f"({span}) | {ours} ({seeds}) | {r.verdict} |{extra}")
     return "\n".join(lines) + "\n"
 
 
@@ -308,24 +359,24 @@ def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.
     verdicts = []
     for check in cell.checks:
         ax.axvspan(check.lo / scale, check.hi / scale, color="tab:orange", alpha=0.12, lw=0)
-        text = verdict_text(verdict(ours_c, cell, check, ladder.widen), check, cell.steps, short=True)
+        text = verdict_text(verdict(ours_c, cell, check, ladder.widen_of(cell)), check, cell.steps, short=True)
         verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {text}")
     ax.set_xlim(0, cell.steps / scale)
-    ax.set_ylim(-0.03, 1.03)
+    if cell.bounded:
+        ax.set_ylim(-0.03, 1.03)
     ax.set_xlabel(f"Environment steps ({unit})")
-    ax.set_ylabel("Deployed success")
+    ax.set_ylabel("Deployed success" if cell.bounded else "Deployed return")
     ax.grid(alpha=0.25, lw=0.5)
     ax.set_title(f"{cell.name} / {cell.env}\n" + "\n".join(verdicts))
 
 
 def pass_probability(per_seed: np.ndarray, lower: float, upper: float, n: int, draws: int = 100_000,
-                     seed: int = 0) -> float:
-    """P(a check passes) for n seeds of a FAITHFUL method: seed window means drawn from a Beta distribution fitted (by
-    moments) to the published per-seed window means ``per_seed``, so seeds may fall outside the published range."""
-    m = np.clip(np.asarray(per_seed, dtype=np.float64), 0.005, 0.995)
-    mu, var = m.mean(), max(m.var(ddof=1), 1e-4)
-    k = max(mu * (1 - mu) / var - 1, 1e-3)
-    x = np.random.default_rng(seed).beta(mu * k, (1 - mu) * k, size=(draws, n)).mean(axis=1)
+                     seed: int = 0, bounded: bool = True) -> float:
+    """P(a check passes) for n seeds of a FAITHFUL method: seed window means drawn from a Beta distribution (a Normal
+    for a return: ``bounded`` False) fitted by moments to the published per-seed window means ``per_seed``, so seeds
+    may fall outside the published range."""
+    m = np.asarray(per_seed, dtype=np.float64)
+    x = C.window_model(m, np.random.default_rng(seed), (draws, n), bounded).mean(axis=1)
     return float(((lower <= x) & (x <= upper)).mean())
 
 
@@ -335,8 +386,9 @@ def operating_characteristics(ladder: Ladder, published: pd.DataFrame, seeds=(2,
     for cell in ladder.cells:
         for check in cell.checks:
             per_seed = window_means(published_curves(published, check, cell.env), check.lo, check.hi).to_numpy()
-            lower, upper = check.min - ladder.widen, check.max + ladder.widen
+            lower, upper = check.min - ladder.widen_of(cell), check.max + ladder.widen_of(cell)
             rows.append({"method": cell.name, "env": cell.env, "window": f"{check.lo // 1000}k-{check.hi // 1000}k",
                          "lower": lower, "upper": upper,
-                         **{f"p_pass_{n}_seeds": pass_probability(per_seed, lower, upper, n) for n in seeds}})
+                         **{f"p_pass_{n}_seeds": pass_probability(per_seed, lower, upper, n, bounded=cell.bounded)
+                            for n in seeds}})
     return pd.DataFrame(rows)

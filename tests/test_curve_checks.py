@@ -190,3 +190,57 @@ def test_evidence_survives_a_check_decided_before_its_window_is_full(tmp_path):
     assert e.loc[("naive", "sawyer_peg"), "evidence"] == "fails"
     assert "whatever the rest scores" in e.loc[("naive", "sawyer_peg"), "windows"]
     assert "400k-500k running" in evidence_markdown(e.reset_index())
+
+
+def returns_five(levels=(-900.0, -700.0, -2200.0, -500.0, 100.0), start=-2700.0, at=300_000) -> pd.DataFrame:
+    """Five published seeds of a return metric: ``start`` (doing nothing) until ``at``, then their own level."""
+    return pd.concat([curve(lambda s, lv=lv: lv if s >= at else start, k, 1_000_000) for k, lv in enumerate(levels)],
+                     ignore_index=True)
+
+
+def test_return_cells_check_in_return_units_without_success_bounds(tmp_path):
+    """kitchen and minitaur publish returns: a cell there needs its own widen (return units), its window model is a
+    Normal, its running final-window check is never decided early (a return has no bounds) and it has no
+    first-success check."""
+    suite = tmp_path / "returns.yaml"
+    suite.write_text("seeds: 2\ncells: [{algo: oracle, env: kitchen, steps: 1000000, checks: [{window: [900000, 1000000], "
+                     "published: {source: src, mean: -840, min: -2200, max: 100}}]}]\n")
+    with pytest.raises(R.ConfigError, match="kitchen's published curves are deployed_return: give the cell its own"):
+        R.load_ladder(str(suite))
+    suite.write_text(suite.read_text().replace("steps: 1000000,", "steps: 1000000, widen: 264,"))
+    ladder = R.load_ladder(str(suite))
+    cell = ladder.cells[0]
+    assert cell.metric == "deployed_return" and not cell.bounded and ladder.widen_of(cell) == 264
+    assert ladder.rule_of(cell).widen == 264 and not ladder.rule_of(cell).bounded
+    check = cell.checks[0]
+    flat = lambda level: pd.concat([curve(lambda s: level, k, 1_000_000) for k in (0, 1)])  # noqa: E731
+    v = R.verdict(flat(-2400.0), cell, check, 264)  # band [-2464, 364]
+    assert v["status"] == "pass" and (v["lower"], v["upper"]) == (-2464, 364)
+    assert R.verdict(flat(-2500.0), cell, check, 264)["status"] == "fail"
+    assert R.verdict_text(R.verdict(flat(500.0), cell, check, 264), check, cell.steps) == "fail (too strong)"
+    # nine of ten window evaluations at -2600: a success rate would be decided, a return waits for the last one
+    running = R.verdict(flat(-2600.0).query("step < 1000000"), cell, check, 264)
+    assert running["status"] == "running" and running["decided"] is None
+    # the whole curve: a faithful pair passes; one that does nothing for the whole budget fails from 300k on
+    pub = returns_five()
+    rule = ladder.rule_of(cell)
+    a, p = C.allowance(pub, 1_000_000, 2, rule)
+    assert p <= 0.05 and a < 7
+    good = pd.concat([curve(lambda s: -700.0 if s >= 300_000 else -2700.0, k, 1_000_000) for k in (0, 1)])
+    v = C.whole_curve_verdict(good, pub, 1_000_000, (0, 1), rule)
+    assert v["status"] == "pass" and v["first_success_status"] == "n/a"
+    assert C.first_success_text(v) == "n/a: the metric is a return (no success threshold)"
+    idle = C.whole_curve_verdict(flat(-2700.0), pub, 1_000_000, (0, 1), rule)
+    assert idle["status"] == "fail" and [lo for lo, side in idle["out"]] == list(range(300_000, 1_000_000, 100_000))
+    # the Normal model reaches beyond the published range; the Beta would clip a return into [0, 1]
+    draws = C.window_model(np.array([-900.0, -700.0, -2200.0, -500.0, 100.0]), np.random.default_rng(0), 10_000,
+                           bounded=False)
+    assert draws.min() < -2200 and draws.max() > 100 and draws.mean() == pytest.approx(-840, abs=30)
+    # the tables round a return to a whole number and write its range with "to"
+    ours = good.assign(suite="returns", env="kitchen", algo="oracle", metric="deployed_return")
+    t = R.ladder_table(ladder, ours, published=pub.assign(source="src", env="kitchen", algo="oracle",
+                                                            metric="deployed_return"))
+    assert t["metric"].tolist() == ["deployed_return"] and t["status"].tolist() == ["pass"]
+    md = R.table_markdown(t)
+    assert "| -840 (-2200 to 100) | -700 (-700, -700) | pass | pass: 0 of 10 windows out" in md
+    assert md.rstrip().endswith("| n/a: the metric is a return (no success threshold) |")

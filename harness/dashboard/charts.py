@@ -105,9 +105,10 @@ def cell_chart(ladder, cell, ours: pd.DataFrame, pub: pd.DataFrame | None, verdi
         d = pd.concat(frames, ignore_index=True)[["step", "value", "curve", "line", "thick"]]
         color = alt.Color("curve:N", scale=alt.Scale(domain=["ours", "published"], range=["#1f77b4", "#555555"]),
                           legend=alt.Legend(title=None, orient="bottom"))
-        base = alt.Chart(d).encode(x=x, y=alt.Y("value:Q", title="deployed success", scale=alt.Scale(domain=[0, 1])),
-                                   color=color, detail="line:N",
-                                   tooltip=["line", "step", alt.Tooltip("value:Q", format=".2f")])
+        y = (alt.Y("value:Q", title="deployed success", scale=alt.Scale(domain=[0, 1])) if cell.bounded
+             else alt.Y("value:Q", title="deployed return", scale=alt.Scale(zero=False)))
+        base = alt.Chart(d).encode(x=x, y=y, color=color, detail="line:N",
+                                   tooltip=["line", "step", alt.Tooltip("value:Q", format=".2f" if cell.bounded else ".0f")])
         layers += [base.transform_filter(~alt.datum.thick).mark_line(strokeWidth=0.8, opacity=0.45),
                    base.transform_filter(alt.datum.thick).mark_line(strokeWidth=2.5).encode(
                        strokeDash=alt.StrokeDash("curve:N", scale=alt.Scale(domain=["ours", "published"],

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import pandas as pd
@@ -38,11 +37,13 @@ def tab_reproduction(root: str, sig: tuple) -> None:
             f"{int((cells[c] == s).sum())} {s}" for c in ("curve_status",) for s in ("pass", "fail", "running"))
             + "; first success: " + ", ".join(f"{int((cells['first_success_status'] == s).sum())} {s}"
                                               for s in ("pass", "fail", "running")))
-    view = t.assign(ours_per_seed=[", ".join("-" if math.isnan(x) else f"{x:.2f}" for x in v) for v in t["ours_per_seed"]],
-                    published_range=[f"{a:.2f}-{b:.2f}" for a, b in zip(t["published_min"], t["published_max"])],
-                    accepted=[f"{a:.2f}-{b:.2f}" for a, b in t["band"]])
+    f = R.value_text
+    view = t.assign(ours_per_seed=[", ".join(f(x, m) for x in v) for v, m in zip(t["ours_per_seed"], t["metric"])],
+                    published_range=[f"{f(a, m)} to {f(b, m)}" for a, b, m in zip(t["published_min"],
+                                                                                   t["published_max"], t["metric"])],
+                    accepted=[f"{f(a, m)} to {f(b, m)}" for (a, b), m in zip(t["band"], t["metric"])])
     whole = ["curve", "first_success"] if "curve" in t else []
-    st.dataframe(view[["method", "env", "budget", "seeds", "window", "published", "published_range", "accepted", "ours",
+    st.dataframe(view[["method", "env", "metric", "budget", "seeds", "window", "published", "published_range", "accepted", "ours",
                        "ours_per_seed", "verdict", *whole]], hide_index=True,
                  column_config={"published": st.column_config.NumberColumn("published mean", format="%.2f"),
                                 "ours": st.column_config.NumberColumn("ours: seed mean", format="%.2f"),
@@ -50,8 +51,10 @@ def tab_reproduction(root: str, sig: tuple) -> None:
                                 "verdict": st.column_config.TextColumn("final window"),
                                 "curve": st.column_config.TextColumn("whole curve (every 100k window)"),
                                 "first_success": st.column_config.TextColumn("first success (>= 0.5)")})
-    st.caption(f"A check passes when our seed-mean of the window means lies in [published min - {ladder.widen:g}, "
-               f"published max + {ladder.widen:g}] (the per-seed range of the published seeds, widened); it is running "
+    own = sorted({f"{c.env} {c.widen:g}" for c in ladder.cells if c.widen is not None})
+    widen = f"{ladder.widen:g}" + (f" (in the metric's units; cells of their own: {', '.join(own)})" if own else "")
+    st.caption(f"A check passes when our seed-mean of the window means lies in [published min - w, published max + w], "
+               f"w = {widen} (the per-seed range of the published seeds, widened); it is running "
                "until every seed has all its evaluations in the window (\"pass whatever the rest scores\": no outcome of "
                "the evaluations still to come can turn it). The whole-curve check applies the same band to every 100k "
                "window up to the budget and allows as many windows out as a faithful method exceeds with probability "
