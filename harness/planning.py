@@ -86,7 +86,7 @@ def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     return units
 
 
-CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "checks"}
+CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "checks", "widen"}
 
 
 def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:

@@ -19,7 +19,7 @@ from harness.synthetic import write_run
 
 from .conftest import requires_data
 
-SUITES = ("reproduction", "vaprl_ablation", "table1")
+SUITES = ("reproduction", "vaprl_ablation", "table1", "earl_returns")
 
 
 def _curves(values: dict[int, list[float]], start: int = 10_000, every: int = 10_000) -> pd.DataFrame:
@@ -85,7 +85,8 @@ def test_seed_mean_stops_where_the_slowest_seed_stops():
 @requires_data
 @pytest.mark.parametrize("suite", SUITES)
 def test_suite_published_numbers_match_the_published_curves(suite):
-    """Every check's published mean / min / max (2 decimals, for reading) are the per-seed window means of the data."""
+    """Every check's published mean / min / max (2 decimals for a success rate, 1 for a return) are the per-seed window
+    means of the data, in the env's metric."""
     from harness.results import load_published
 
     pub = load_published()
@@ -99,10 +100,10 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             # 5 published seeds, but 4 for MEDAL peg's 6.5M-6.6M (one published seed has no evaluations there)
             assert len(per_seed) == (4 if (cell.algo, cell.env, check.lo) == ("medal", "sawyer_peg", 6_500_000) else 5)
             assert (check.mean, check.min, check.max) == pytest.approx(
-                (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051), (cell, check)
+                (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051 if cell.bounded else 0.051), (cell, check)
             n += 1
     # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 22 cells (two of them: two windows)
-    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12}[suite]
+    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12, "earl_returns": 3}[suite]
 
 
 @requires_data
