@@ -51,6 +51,8 @@ class Task(Protocol):
     @property
     def goal_dim(self) -> int: ...  # state_dim, or fewer where the goal holds some state coordinates (minitaur: xy)
 
+    def goal_of(self, states): ...  # the goals states would be: their goal coordinates, or the whole states
+
     def goal_distance(self, obs): ...
 
     def is_success(self, obs): ...

@@ -64,7 +64,7 @@ class ForwardBackward(Algorithm):
         self.rngs = member_rngs(seeds, stream=Stream.TASK_GOALS)  # goal draws at switches
         self.phase = np.zeros(E, dtype=np.int64)
         self.phase_steps = np.zeros(E, dtype=np.int64)
-        self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
+        self.goal = np.zeros((E, task.goal_dim), dtype=np.float32)
         self.step = 0
         self._action = np.zeros((E, A), dtype=np.float32)
         self.timers = Timers(device)
@@ -146,10 +146,12 @@ class ForwardBackward(Algorithm):
         self.learn_extra(bwd_batch, bwd)
 
     def store(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> None:
-        """The step into the acting controller's buffer, terminal on success (forward; backward where it ends on
-        success), truncated at a switch or a hard reset."""
+        """The step into the acting controller's buffer with the task's reward under the phase's goal (1[success], or
+        the env's dense reward), terminal on success (forward; backward where it ends on success), truncated at a
+        switch or a hard reset."""
         no = with_goal(next_obs, self.goal, self.task.state_dim)
         success = np.asarray(self.task.is_success(no), dtype=bool)
+        reward = np.asarray(self.task.compute_reward(no), dtype=np.float32)
         fwd = self.phase == FORWARD
         bwd = ~fwd
         self.phase_steps += 1
@@ -159,7 +161,7 @@ class ForwardBackward(Algorithm):
         with self.timers("buffer"):
             for buf, m in ((self.fwd_buf, fwd), (self.bwd_buf, bwd)):
                 if m.any():
-                    buf.add(self._action, success.astype(np.float32), no, terminal, truncated, m)
+                    buf.add(self._action, reward, no, terminal, truncated, m)
             if bwd.any():
                 self.on_backward_states(no, bwd)
         self._stored = terminal, switch

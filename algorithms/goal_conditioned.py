@@ -149,7 +149,7 @@ class GoalConditioned(Algorithm):
         self.direction = np.zeros(E, dtype=np.int64)
         self.phase_steps = np.zeros(E, dtype=np.int64)  # actions taken in the current phase
         self.phase_hit = np.zeros(E, dtype=bool)  # the current phase has reached its goal at some step
-        self.goal = np.zeros((E, task.state_dim), dtype=np.float32)
+        self.goal = np.zeros((E, task.goal_dim), dtype=np.float32)
         self.step = 0
         self._obs = np.zeros((E, O), dtype=np.float32)
         self._action = np.zeros((E, A), dtype=np.float32)
@@ -160,7 +160,7 @@ class GoalConditioned(Algorithm):
 
     # -- hooks -------------------------------------------------------------------------------------
     def phase_goals(self, mask: np.ndarray) -> np.ndarray:
-        """Goals (E, state_dim) for the members in ``mask`` starting a phase in ``self.direction``."""
+        """Goals (E, goal_dim) for the members in ``mask`` starting a phase in ``self.direction``."""
         raise NotImplementedError
 
     def switch_request(self, obs: torch.Tensor) -> torch.Tensor | None:
@@ -229,10 +229,12 @@ class GoalConditioned(Algorithm):
         return self._action
 
     def store(self, next_obs: np.ndarray, hard_reset: np.ndarray) -> None:
-        """The step, terminal on success where success ends the phase, truncated at the phase's step limit, an early
-        switch or a hard reset; then :meth:`stored` (relabelling)."""
+        """The step with the task's reward under the phase's goal (1[success], or the env's dense reward), terminal on
+        success where success ends the phase, truncated at the phase's step limit, an early switch or a hard reset;
+        then :meth:`stored` (relabelling)."""
         no = with_goal(next_obs, self.goal, self.task.state_dim)
         success = np.asarray(self.task.is_success(no), dtype=bool)
+        reward = np.asarray(self.task.compute_reward(no), dtype=np.float32)
         terminal = success if self.success_ends_phase() else np.zeros_like(success)
         self.phase_steps += 1
         self.phase_hit |= success
@@ -240,7 +242,7 @@ class GoalConditioned(Algorithm):
         truncated = ~terminal & (limit | self._switch | hard_reset)
         end = terminal | truncated
         with self.timers("buffer"):
-            self.buffer.add(self._action, success.astype(np.float32), no, terminal, truncated)
+            self.buffer.add(self._action, reward, no, terminal, truncated)
             self.stored(self._obs, no, end)
         self._stored = success, end
 

@@ -138,6 +138,8 @@ class R3L(ForwardBackward):
 
     label = "R3L"
     Config = R3LConfig
+    state_goals = False  # goals are only ever task goals
+    task_reward = True  # the forward controller learns from the task's reward (dense on kitchen and minitaur)
 
     def __init__(self, task: Task, demos: DemoSet, cfg: R3LConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)

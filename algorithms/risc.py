@@ -26,7 +26,11 @@ Deviations (documented):
   critic, actor, ...): with separate networks this is the same computation (same actor state).
 Not a deviation: the switcher also runs during the warm-up (on the untrained success critic), as in RISC's code,
 whose agent asks ``should_switch`` at every training step, warm-up included.
-Per-env values (14.4) live in suites/algorithms/risc.yaml; the dataclass defaults are tabletop's.
+Per-env values (14.4) live in suites/algorithms/risc.yaml; the dataclass defaults are tabletop's (minitaur: its
+risc_minitaur.yaml; kitchen, which RISC never ran: the phase limit is the evaluation horizon, as in every released
+config). On kitchen and minitaur the reward is the env's dense reward under the phase's goal (RISC's minitaur config:
+``reward_type: dense``, ``env.compute_reward`` of the observation with the goal). Minitaur's goal is the base xy only:
+backward goals come from :meth:`RISC.backward_goal_pools` (``backward_goal``; DEFAULT what RISC's released code does).
 """
 
 from __future__ import annotations
@@ -53,6 +57,11 @@ class RISCConfig(GCConfig):
     conservative_factor: float = setting(0.9, "c of the switch probability P_hat * (1 - c^t)", ge=0, le=1)
     minimum_steps: int = setting(100, "no early switch before this phase step", ge=0, le=10**9)
     trajectory_proportion: float = setting(1.0, "probability that a step may switch early", ge=0, le=1)
+    backward_goal: str = setting(
+        "reset_observation", "backward goals where the goal is a few state coordinates (minitaur): reset_observation = "
+        "the goal coordinates of one reset observation per run, as RISC's released code takes them (on minitaur: the "
+        "task goal drawn at that reset); initial_state = the initial states' goal coordinates (the start position)",
+        choices=("reset_observation", "initial_state"))
 
 
 @dataclass
@@ -83,6 +92,8 @@ class RISC(GoalConditioned):
 
     label = "RISC"
     Config = RISCConfig
+    state_goals = False  # backward goals are projected onto the goal coordinates (backward_goal_pools)
+    task_reward = True  # the task's reward under the phase's goal: dense on kitchen and minitaur (RISC: reward_type)
 
     def __init__(self, task: Task, demos: DemoSet, cfg: RISCConfig, seeds: list[int], device: torch.device):
         super().__init__(task, demos, cfg, seeds, device)
@@ -90,11 +101,25 @@ class RISC(GoalConditioned):
                                  success_squash)
         self.switch_rngs = member_rngs(seeds, Stream.SWITCH)
         self.switches = np.zeros(self.E)  # early switches so far (diagnostic)
+        self.backward_pools = self.backward_goal_pools(cfg.backward_goal)
+
+    def backward_goal_pools(self, how: str) -> list[np.ndarray]:
+        """Per member, the goals its backward phases draw from: EARL's initial states, or where the goal is only some
+        state coordinates (minitaur) their goal coordinates (``initial_state``) or, as RISC's released code computes
+        them, the goal half of one reset observation (``reset_observation``: ``risc/envs/earl.py`` keeps
+        ``initial_states[:, -goal_dim:]`` of the 32-dim observation its EARL fork returns, which is the goal that reset
+        drew, not the start position). That goal is drawn here, once per member, from its goal generator."""
+        task = self.task
+        if task.goal_dim == task.state_dim:
+            return [task.initial_states] * self.E
+        if how == "initial_state":
+            return [task.goal_of(task.initial_states)] * self.E
+        return [task.goal_states[r.integers(len(task.goal_states))][None] for r in self.goal_rngs]
 
     def phase_goals(self, mask: np.ndarray) -> np.ndarray:
         out = np.zeros_like(self.goal)
         for i in np.flatnonzero(mask):
-            pool = self.task.goal_states if self.direction[i] == FORWARD else self.task.initial_states
+            pool = self.task.goal_states if self.direction[i] == FORWARD else self.backward_pools[i]
             out[i] = pool[self.goal_rngs[i].integers(len(pool))]
         return out
 

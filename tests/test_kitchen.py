@@ -349,7 +349,39 @@ def test_render():
 
 def test_algorithms_that_ignore_the_dense_reward_are_refused(tmp_path, capsys):
     """EARL trained kitchen's baselines on its dense reward: an algorithm that learns from 1[success] is refused."""
-    assert main(["run", "algo=fbrl", "env=kitchen", f"results={tmp_path}", "--dry-run"]) == 2
+    assert main(["run", "algo=fbrl_vice", "env=kitchen", f"results={tmp_path}", "--dry-run"]) == 2
     err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and "learns from 1[success]" in err and "naive, oracle" in err
+    assert len(err.splitlines()) == 1 and "learns from 1[success]" in err and "naive, oracle, fbrl, r3l" in err
+    assert "risc" in err
     assert not tmp_path.exists() or not list(tmp_path.iterdir())
+
+
+def test_fbrl_stores_the_dense_reward_under_each_controllers_goal():
+    """FBRL on kitchen: the forward controller's reward is EARL's dense reward towards the task goal (all closed), the
+    backward controller's the same reward towards the initial state it was given (two objects open)."""
+    import torch
+
+    from algorithms.api import BACKWARD, DemoSet
+    from algorithms.fbrl import FBRL, FBRLConfig
+    from harness.envs import get_spec, load_env_demos
+    from tests.stepping import take_step
+
+    spec = get_spec("kitchen")
+    demos = DemoSet(load_env_demos("kitchen", "forward"), load_env_demos("kitchen", "reverse"))
+    algo = FBRL(spec, demos, FBRLConfig(switch_every=1, seed_steps=10**6, batch_size=4, buffer_capacity=100), [0],
+                torch.device("cpu"))
+    rng = np.random.default_rng(0)
+    state = spec.initial_states[2] + rng.normal(0, 0.01, 23)
+    obs = np.concatenate([state, spec.goal_states[0]])[None].astype(np.float32)
+    algo.on_reset(obs, np.ones(1, dtype=bool))
+    take_step(algo, obs, obs, np.zeros(1, dtype=bool))  # forward step, then the switch
+    assert (algo.phase == BACKWARD).all() and any(np.allclose(algo.goal[0], s0) for s0 in spec.initial_states)
+    backward_goal = algo.goal[0].copy()
+    take_step(algo, obs, obs, np.zeros(1, dtype=bool))  # backward step, then back to forward
+    for buf, goal in ((algo.fwd_buf, spec.goal_states[0]), (algo.bwd_buf, backward_goal)):
+        b = buf.sample(2, mask=np.ones(1, dtype=bool))
+        no = b["next_obs"].numpy()
+        assert np.allclose(no[..., 23:], goal)
+        assert np.allclose(b["reward"].numpy(), spec.compute_reward(no).astype(np.float32), atol=1e-4)
+    fwd_r = float(algo.fwd_buf.sample(1, mask=np.ones(1, dtype=bool))["reward"][0, 0])
+    assert fwd_r < -1  # far from all-closed: dense and negative, not 1[success]

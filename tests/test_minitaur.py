@@ -359,12 +359,82 @@ def test_gym_make_and_render():
     e.close()
 
 
-@sim
 def test_algorithms_that_set_states_as_goals_are_refused(capsys, tmp_path):
-    for algo in ("fbrl", "risc", "medal"):
-        assert main(["run", f"algo={algo}", "env=minitaur", f"results={tmp_path / 'r'}"]) == 2
+    """MEDAL and VaPRL write demo states into goals (and need demos EARL never shipped for minitaur): one line."""
+    for algo in ("medal", "vaprl"):
+        assert main(["run", f"algo={algo}", "env=minitaur", f"results={tmp_path / 'r'}", "--dry-run"]) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and "sets states as goals" in err and "naive, oracle" in err, err
+        assert "fbrl" in err and "risc" in err, err  # they project states onto the goal's coordinates
+
+
+def _member_step(algo, spec, obs, next_obs):
+    """One scripted step (no simulator): what the algorithm stores for ``next_obs``."""
+    from tests.stepping import take_step
+
+    take_step(algo, obs, next_obs, np.zeros(len(obs), dtype=bool))
+
+
+def test_fbrl_r3l_and_risc_project_goals_and_learn_from_the_dense_reward():
+    """FBRL's backward goal is the start position (base xy of EARL's initial state); RISC's backward goal is, as its
+    released code computes it, a task goal fixed per run (or the start position with backward_goal=initial_state);
+    every stored reward is EARL's dense reward of the stored observation, under the phase's goal."""
+    import torch
+
+    from algorithms.api import BACKWARD, DemoSet
+    from algorithms.fbrl import FBRL, FBRLConfig
+    from algorithms.r3l import R3L, R3LConfig
+    from algorithms.risc import RISC, RISCConfig
+    from harness.envs import get_spec, load_env_demos
+
+    spec = get_spec("minitaur")
+    demos = DemoSet(load_env_demos("minitaur", "forward"), load_env_demos("minitaur", "reverse"))
+    start_xy = spec.initial_states[0, 28:30]
+    assert np.array_equal(spec.goal_of(spec.initial_states), start_xy[None])
+    rng = np.random.default_rng(0)
+
+    def obs_at(goal):
+        o = np.zeros((2, 32), np.float32)
+        o[:, :30] = spec.initial_states[0] + rng.normal(0, 0.05, (2, 30))
+        o[:, 30:] = goal
+        return o
+
+    small = dict(seed_steps=10**6, batch_size=8, buffer_capacity=1000)
+    fb = FBRL(spec, demos, FBRLConfig(switch_every=2, **small), [0, 1], torch.device("cpu"))
+    obs = obs_at(spec.goal_states[0])
+    fb.on_reset(obs, np.ones(2, dtype=bool))
+    for _ in range(2):  # two forward steps, then the switch to backward
+        _member_step(fb, spec, obs, (obs := obs_at(spec.goal_states[0])))
+    assert (fb.phase == BACKWARD).all() and np.allclose(fb.goal, start_xy)
+    nxt = obs_at(spec.goal_states[0])
+    _member_step(fb, spec, obs, nxt)
+    batch = fb.bwd_buf.sample(4, mask=np.ones(2, dtype=bool))
+    no = batch["next_obs"].numpy()
+    assert np.allclose(no[..., 30:], start_xy)  # the backward controller's goal is the start xy
+    assert np.allclose(batch["reward"].numpy(), spec.compute_reward(no).astype(np.float32))
+    assert (batch["reward"].numpy() < 0).all()  # dense: minus the distance, not 1[success]
+
+    r3l = R3L(spec, demos, R3LConfig(**small), [0], torch.device("cpu"))
+    o = obs_at(spec.goal_states[1])[:1]
+    r3l.on_reset(o, np.ones(1, dtype=bool))
+    _member_step(r3l, spec, o, obs_at(spec.goal_states[1])[:1])
+    b = r3l.fwd_buf.sample(2, mask=np.ones(1, dtype=bool))
+    assert np.allclose(b["reward"].numpy(), spec.compute_reward(b["next_obs"].numpy()).astype(np.float32))
+
+    cfg = dict(seed_steps=10**6, batch_size=8, buffer_capacity=10_000)
+    risc = RISC(spec, demos, RISCConfig(**cfg), [0, 1, 2, 3], torch.device("cpu"))
+    pools = np.concatenate(risc.backward_pools)
+    assert pools.shape == (4, 2) and all((spec.goal_states == g).all(1).any() for g in pools)
+    again = RISC(spec, demos, RISCConfig(**cfg), [0, 1, 2, 3], torch.device("cpu"))
+    assert np.array_equal(np.concatenate(again.backward_pools), pools)  # drawn from each member's seed
+    home = RISC(spec, demos, RISCConfig(backward_goal="initial_state", **cfg), [0], torch.device("cpu"))
+    assert np.array_equal(home.backward_pools[0], start_xy[None])
+    # on an env whose goal is the whole state both choices are EARL's initial states
+    door = get_spec("sawyer_door")
+    for how in ("reset_observation", "initial_state"):
+        r = RISC(door, DemoSet(load_env_demos("sawyer_door", "forward"), load_env_demos("sawyer_door", "reverse")),
+                 RISCConfig(backward_goal=how, **cfg), [0], torch.device("cpu"))
+        assert r.backward_pools[0] is door.initial_states
 
 
 @sim

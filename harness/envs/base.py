@@ -57,6 +57,11 @@ class EnvSpec:
     def goal_dim(self) -> int:
         return self.state_dim if self.goal_idx is None else len(self.goal_idx)
 
+    def goal_of(self, states):
+        """The goals that ``states`` (..., state_dim) would be: their goal coordinates (``goal_idx``, minitaur's base
+        xy), else the whole states (numpy or torch)."""
+        return states if self.goal_idx is None else states[..., list(self.goal_idx)]
+
     def split(self, obs):
         """``obs[..., :state_dim], obs[..., state_dim:]`` (works for numpy and torch)."""
         return obs[..., : self.state_dim], obs[..., self.state_dim :]
