@@ -79,3 +79,4 @@ class Plan:
     machine: str = ""  # the node the plan was packed for (harness.packing.Machine.describe)
     packing: tuple[str, ...] = ()  # how members, workers and env_workers were chosen (harness.packing)
     per_device: int = 1  # processes at once per device (Ray reserves 1/per_device of a GPU per group)
+    left_out: tuple[str, ...] = ()  # "algo on env (why)" for what a runnable_only suite leaves out

@@ -169,6 +169,17 @@ def check_goal_shape(name: str, cls, env: str) -> None:
                       f"{spec.state_dim} state coordinates; algorithms that run on it: {', '.join(able)}")
 
 
+def check_runs_on(name: str, cls, cfg, env: str) -> None:
+    """:class:`ConfigError` (one line) when algorithm ``cls`` configured by ``cfg`` cannot run on ``env``."""
+    check_goal_shape(name, cls, env)  # first: its list of what runs also leaves out what needs demos
+    check_demos_needed(name, cls, cfg, env)
+    check_task_reward(name, cls, env)
+    try:
+        cls.check_task(cfg, env_info(env).spec)
+    except ValueError as e:
+        raise ConfigError(f"{name} on {env}: {e}") from None
+
+
 def build_plan(req: RunRequest) -> Plan:
     """Resolve a request into run groups, checking everything (suite, algorithms, envs, configs, data, results
     directories); nothing is written. :func:`plan_words` does it for the words of a command."""
@@ -219,23 +230,29 @@ def build_plan(req: RunRequest) -> Plan:
         raise ConfigError(f"override(s) for {', '.join(stray)} match no selected algorithm "
                           f"(selected: {', '.join(sorted(selected)) or 'none'})")
     check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, req.config)
+    configs, left_out = [], []
+    for u in units:
+        cls = ALGORITHMS[u.algo_class]
+        cell_layer = {u.algo_class: u.config} if u.config else {}
+        cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
+        try:
+            check_runs_on(u.name, cls, cfg, u.env)
+        except ConfigError as e:
+            if not suite.get("runnable_only"):
+                raise
+            left_out.append(f"{u.name} on {u.env}: {str(e).split('; ')[0].removeprefix(f'algo={u.name} ')}")
+            continue
+        configs.append((u, cfg))
+    if not configs:
+        raise ConfigError(f"nothing to run: every selected algorithm is left out ({'; '.join(left_out)})")
+    units = [u for u, _ in configs]
     protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
     sha = git_sha()
     machine = Machine.detect()
     packing = pack([Work(len(u.seeds), u.steps, env_info(u.env).spec.obs_dim, env_info(u.env).spec.act_dim, u.members,
                          u.cpu_members) for u in units], req.device, machine, req.members, req.workers, req.env_workers)
     groups: list[RunSpec] = []
-    for u, members in zip(units, packing.members):
-        cls = ALGORITHMS[u.algo_class]
-        cell_layer = {u.algo_class: u.config} if u.config else {}
-        cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
-        check_goal_shape(u.name, cls, u.env)  # first: its list of what runs also leaves out what needs demos
-        check_demos_needed(u.name, cls, cfg, u.env)
-        check_task_reward(u.name, cls, u.env)
-        try:
-            cls.check_task(cfg, env_info(u.env).spec)
-        except ValueError as e:
-            raise ConfigError(f"{u.name} on {u.env}: {e}") from None
+    for (u, cfg), members in zip(configs, packing.members):
         fwd = load_env_demos(u.env, "forward")  # fails early, with one line, if the data is missing
         cfg_plain = as_plain(cfg)
         ident = {"env": u.env, "algo": u.name, "config": cfg_plain, "protocol": protocol, "demos": fwd.source}
@@ -254,7 +271,7 @@ def build_plan(req: RunRequest) -> Plan:
         groups = [replace(g, update=resumed_update(g)) for g in groups]
     plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend,
                 ray_address=req.ray_address, calibrate=req.calibrate, machine=machine.describe(),
-                packing=packing.reasons, per_device=packing.per_device)
+                packing=packing.reasons, per_device=packing.per_device, left_out=tuple(left_out))
     check_results_dirs(plan)
     return plan
 

@@ -127,6 +127,8 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     print(f"suite {plan.suite}: {len(plan.groups)} group(s), {sum(len(g.seeds) for g in plan.groups)} run(s), "
           f"{steps:,} env steps in all" + (f" ({left:,} left to run; the rest is done or checkpointed)" if left < steps else "")
           + f", {plan.workers} worker(s)")
+    if plan.left_out:
+        print(f"left out ({len(plan.left_out)}: they cannot run there):" + "".join(f"\n  {x}" for x in plan.left_out))
     if plan.machine:
         devices = sorted({g.device for g in plan.groups})
         print(f"packed for {plan.machine}: {plan.workers} process(es) at once on {', '.join(devices)}"
@@ -149,12 +151,18 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
         print("estimated time: not measured yet on this machine; `harness run ... --dry-run calibrate=true` (the "
               "default) measures each kind of group for a few seconds (cached)")
         return
-    work = [((total[i] - done[i]) // len(plan.groups[i].seeds), rates[i]) for i in todo]
+    evals = dict(zip(todo, calibration.eval_costs([plan.groups[i] for i in todo], threads)))
+    work = []
+    for i in todo:  # (steps left per member, its effective rate: evaluations included)
+        left = (total[i] - done[i]) // len(plan.groups[i].seeds)
+        work.append((left, left / calibration.group_seconds(plan.groups[i], left, rates[i], evals[i])))
     est = calibration.estimate(work, plan.workers)
     when = calibration.when_measured([plan.groups[i] for i in todo], threads)
+    measured = all(evals[i] is not None for i in todo)
     print(f"estimated time: {_fmt_time(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
-          f"on this machine{when} (evaluations add ~3%; other load on the machine slows it; calibrate=refresh "
-          "measures again)")
+          f"on this machine{when} (evaluations " + ("included, as measured" if measured else
+                                                     f"add ~{calibration.EVAL_SHARE:.0%} where not measured")
+          + "; other load on the machine slows it; calibrate=refresh measures again)")
     if est > LONG_PLAN_S:
         print(ways_forward(plan, work, est))
 

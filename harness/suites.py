@@ -33,7 +33,7 @@ from harness.words import ConfigError
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every",
-              "keep_every", "log_every", "config", "members", "cells", "criterion"}
+              "keep_every", "log_every", "config", "members", "cells", "criterion", "runnable_only"}
 
 
 def list_suites() -> list[str]:
@@ -110,6 +110,9 @@ def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
             if not isinstance(settings, dict):
                 raise ConfigError(f"suite {path}: config for {scope!r} must be a mapping of keys to values, "
                                   f"got {settings!r}")
+    if not isinstance(d.get("runnable_only", False), bool):
+        raise ConfigError(f"suite {path}: runnable_only must be true or false (leave out the algorithm x env pairs "
+                          f"that cannot run), got {d['runnable_only']!r}")
     if "cells" in d and {"algos", "envs", "steps"} & set(d):
         raise ConfigError(f"suite {path} has 'cells': algorithms, envs and budgets belong in its cells, "
                           f"not in {sorted({'algos', 'envs', 'steps'} & set(d))}")

@@ -35,12 +35,19 @@ def finished(*args, timeout=1500):
     return out
 
 
+#: what runs on EARL's kitchen and minitaur (no demonstrations; a dense reward; minitaur's goal is the base xy)
+RETURN_ENV_ALGOS = ("naive", "oracle", "fbrl", "r3l", "risc", "risc_no_tab")
+
+
 @requires_data
 def test_smoke_suite_every_algorithm_every_env(tmp_path):
     out = finished("run", "suite=smoke", f"results={tmp_path}", "workers=2")
     df = load(tmp_path)
+    envs = ("tabletop_manipulation", "sawyer_door", "sawyer_peg", "kitchen", "minitaur")
+    assert set(zip(df.algo, df.env)) == {(a, e) for a in ALGORITHMS for e in envs
+                                         if e not in ("kitchen", "minitaur") or a in RETURN_ENV_ALGOS}, out
     for algo in ALGORITHMS:
-        for env in ("tabletop_manipulation", "sawyer_door", "sawyer_peg"):
+        for env in envs if algo in RETURN_ENV_ALGOS else envs[:3]:
             d = df[(df.algo == algo) & (df.env == env) & (df.metric == "deployed_success")]
             assert sorted(d.step) == [0, 200, 400], (algo, env, out)
             st = read_status(tmp_path / "smoke" / env / algo / "seed=0")
@@ -107,9 +114,26 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     assert main([*words, "--dry-run", "calibrate=false"]) == 0
     out = capsys.readouterr().out
     assert "not measured yet" not in out and out.count("100.0 steps/s per seed") == len(plan.groups)
-    work = [(g.steps, 100.0) for g in plan.groups]  # steps per member of each group, none done
+    # steps per member of each group, none done; an entry without an evaluation cost adds the usual share
+    work = [(g.steps, 100.0 / (1 + calibration.EVAL_SHARE)) for g in plan.groups]
     assert f"estimated time: {_fmt_time(calibration.estimate(work, plan.workers))} on" in out
+    assert "(evaluations add ~3% where not measured;" in out
     assert not list(tmp_path.iterdir())
+
+
+def test_the_estimate_counts_each_envs_evaluations_as_measured():
+    """An evaluation costs eval_episodes x H_E steps every eval_every: 10 x 1000 on minitaur (as many env steps as the
+    training between two evaluations), 10 x 200 on peg."""
+    from harness import calibration
+    from harness.plan import RunSpec
+
+    minitaur = RunSpec(suite="s", env="minitaur", algo="risc", algo_class="risc", seeds=(0, 1), steps=2_000_000)
+    peg = RunSpec(suite="s", env="sawyer_peg", algo="risc", algo_class="risc", seeds=(0, 1), steps=2_000_000)
+    # 20 steps/s per member: 100,000 s of training; 200 evaluations of 10 episodes at 4 ms per evaluation step
+    assert calibration.group_seconds(minitaur, 2_000_000, 20.0, 0.004) == pytest.approx(100_000 + 200 * 10 * 1000 * 0.004)
+    assert calibration.group_seconds(peg, 2_000_000, 20.0, 0.004) == pytest.approx(100_000 + 200 * 10 * 200 * 0.004)
+    assert calibration.group_seconds(peg, 2_000_000, 20.0, None) == pytest.approx(103_000)  # not measured: + 3%
+    assert calibration.group_seconds(peg, 15_000, 20.0, 0.004) == pytest.approx(750 + 2 * 10 * 200 * 0.004)
 
 
 @requires_data
@@ -122,7 +146,8 @@ def test_a_long_plan_offers_ways_forward(tmp_path, capsys):
     words = ["algo=naive", "env=tabletop_manipulation", "seeds=5", "steps=10000000", "workers=2",
              f"results={tmp_path}", "calibrate=false"]
     plan = plan_words(words)
-    cache = {calibration.key(g, calibration.worker_threads(plan.workers)): 100.0 for g in plan.groups}
+    cache = {calibration.key(g, calibration.worker_threads(plan.workers)): {"steps_per_s": 100.0, "eval_s_per_step": 0.0}
+             for g in plan.groups}  # evaluations measured as free: the times below are training alone
     (state_dir() / "calibration.json").parent.mkdir(parents=True, exist_ok=True)
     (state_dir() / "calibration.json").write_text(json.dumps(cache))
     assert main(["run", *words, "--dry-run"]) == 0
@@ -140,6 +165,7 @@ def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypa
     """--dry-run measures each kind of group once (cached per machine, threads and config) and packs the groups
     onto the workers longest first."""
     from harness import calibration
+    from harness.planning import plan_words
 
     monkeypatch.setenv("HARNESS_CACHE_DIR", str(tmp_path / "cache"))
     args = ["run", "algo=naive,oracle", "env=tabletop_manipulation", "seeds=2", "steps=5000", "workers=2",
@@ -149,6 +175,8 @@ def test_dry_run_time_comes_from_speeds_measured_here(tmp_path, capsys, monkeypa
     assert out.count("calibrating") == 2 and "steps/s per seed" in out and "estimated time:" in out
     cache = calibration.read_cache()
     assert len(cache) == 2 and all(v > 0 for v in cache.values())
+    assert all(c > 0 for c in calibration.eval_costs(plan_words(args[1:-1]).groups, 1))
+    assert "(evaluations included, as measured;" in out
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "calibrating" not in out  # cached, and the estimate says when and under what load it was measured
@@ -399,3 +427,39 @@ def test_quick_answers_never_load_torch(argv):
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+
+
+@requires_data
+def test_runnable_only_leaves_out_what_cannot_run_and_says_why(tmp_path, capsys):
+    """A suite with runnable_only leaves out the pairs that cannot run (with the reason); without it the first such pair
+    is the usual one-line error; a suite where nothing is left is an error too."""
+    from harness.planning import plan_words
+    from harness.suites import ConfigError
+
+    suite = tmp_path / "mixed.yaml"
+    body = "algos: [naive, medal, fbrl_vice]\nenvs: [tabletop_manipulation, kitchen]\nsteps: 400\n"
+    suite.write_text(body)
+    with pytest.raises(ConfigError, match="algo=medal needs demonstrations and env=kitchen has none"):
+        plan_words([f"suite={suite}", f"results={tmp_path / 'r'}"])
+    suite.write_text(body + "runnable_only: true\n")
+    plan = plan_words([f"suite={suite}", f"results={tmp_path / 'r'}"])
+    assert sorted((g.algo, g.env) for g in plan.groups) == [
+        ("fbrl_vice", "tabletop_manipulation"), ("medal", "tabletop_manipulation"), ("naive", "kitchen"),
+        ("naive", "tabletop_manipulation")]
+    assert plan.left_out == ("medal on kitchen: needs demonstrations and env=kitchen has none (EARL ships none for it)",
+                             "fbrl_vice on kitchen: learns from 1[success] and env=kitchen's reward is dense (EARL "
+                             "trained on it)")
+    assert main(["run", f"suite={suite}", f"results={tmp_path / 'r'}", "--dry-run", "calibrate=false"]) == 0
+    out = capsys.readouterr().out
+    assert "left out (2: they cannot run there):\n  medal on kitchen: needs demonstrations" in out
+    assert not (tmp_path / "r").exists()
+    with pytest.raises(ConfigError, match=r"nothing to run: every selected algorithm is left out \(medal on kitchen"):
+        plan_words([f"suite={suite}", "algo=medal", "env=kitchen", f"results={tmp_path / 'r'}"])
+    suite.write_text(body + "runnable_only: yes please\n")
+    assert main(["run", f"suite={suite}", f"results={tmp_path / 'r'}", "--dry-run"]) == 2
+    assert "runnable_only must be true or false" in capsys.readouterr().err
+    # all of EARL: 14 methods on the three Sawyer/tabletop tasks, the 6 that need no demonstrations on the other two
+    plan = plan_words(["suite=earl_all", f"results={tmp_path / 'r'}"])
+    pairs = {(g.algo, g.env) for g in plan.groups}
+    assert len(pairs) == 14 * 3 + 2 * len(RETURN_ENV_ALGOS) and len(plan.left_out) == 16
+    assert {a for a, e in pairs if e in ("kitchen", "minitaur")} == set(RETURN_ENV_ALGOS)

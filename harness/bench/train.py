@@ -20,7 +20,7 @@ from algorithms.update_modes import UPDATES
 from harness.backends import use_allocator
 from harness.command_keys import BENCH
 from harness.envs import check_env, get_spec, load_env_demos
-from harness.planning import check_demos_needed, check_goal_shape, check_task_reward
+from harness.planning import check_runs_on
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
 from harness.suites import resolve_algo_config
@@ -31,9 +31,7 @@ def bench_train(algo: str, env: str, members: int, steps: int, device: str, repe
                 log=print, env_workers: int = 0, update: str = "default") -> dict:
     cls = ALGORITHMS[algo]
     cfg = resolve_algo_config(cls.Config, algo, env, {"all": {"seed_steps": seed_steps}})
-    check_goal_shape(algo, cls, env)  # one line when algo sets states as goals and env's goal is a few coordinates
-    check_demos_needed(algo, cls, cfg, env)  # one line when algo needs demos and env has none
-    check_task_reward(algo, cls, env)  # one line when algo ignores the env's dense reward
+    check_runs_on(algo, cls, cfg, env)  # one line when algo cannot run on env (goals, demos, reward)
     demos = DemoSet(load_env_demos(env, "forward"), load_env_demos(env, "reverse"))
     seeds = list(range(members))
     agent = cls(get_spec(env), demos, cfg, seeds, torch.device(device))
