@@ -1,7 +1,9 @@
 """Measured training speed for ``harness run --dry-run``: what a plan will cost on this machine.
 
 A calibration trains one group's algorithm (its own config, its members, the threads a worker gets) for a few hundred
-steps past a short seed phase, as ``harness bench train`` does, and records steps/s per member. Results are cached in
+steps past a short seed phase, as ``harness bench train`` does, and records steps/s per member, then times one
+deployed-policy evaluation episode (seconds per evaluation step of all members: an evaluation of kitchen or minitaur,
+400 or 1000 steps per episode, costs far more than one of the Sawyer tasks). Results are cached in
 ``<state>/calibration.json`` (``harness.data.state_dir``) per (machine, torch, device, threads, algorithm, env, members, config), so only the
 first dry-run of a new kind of group pays for it (seconds per group). :func:`estimate` then packs the groups onto the
 workers, longest first (the order a pool runs them in, give or take), and returns the time until the last finishes.
@@ -55,6 +57,30 @@ def read_cache() -> dict[str, float]:
     return {k: (v["steps_per_s"] if isinstance(v, dict) else v) for k, v in _read_entries().items()}
 
 
+def eval_costs(groups: list[RunSpec], threads: int) -> list[float | None]:
+    """Seconds per evaluation step (all members of the group at once) of each group, where measured."""
+    entries = _read_entries()
+    return [e.get("eval_s_per_step") if isinstance(e, dict) else None
+            for e in (entries.get(key(g, threads)) for g in groups)]
+
+
+def group_seconds(group: RunSpec, steps_left: int, rate: float, eval_s_per_step: float | None) -> float:
+    """Seconds ``group`` needs for ``steps_left`` more steps per member at ``rate`` steps/s per member, with its
+    evaluations (every ``eval_every`` steps, ``eval_episodes`` episodes of H_E steps) at their measured cost, or
+    :data:`EVAL_SHARE` more where that was not measured."""
+    from harness.envs import env_info
+
+    train = steps_left / rate
+    if eval_s_per_step is None:
+        return train * (1 + EVAL_SHARE)
+    evals = -(-steps_left // group.eval_every)
+    return train + evals * group.eval_episodes * env_info(group.env).spec.eval_horizon * eval_s_per_step
+
+
+#: the share evaluations add to training time where their cost was not measured (a Sawyer task at EARL's schedule)
+EVAL_SHARE = 0.03
+
+
 def _read_entries() -> dict[str, dict | float]:
     try:
         d = json.loads(_cache_file().read_text())
@@ -75,7 +101,7 @@ def when_measured(groups: list[RunSpec], threads: int) -> str:
     """When the speeds of ``groups`` were measured and how busy the machine was then, for the plan's last line:
     'on 2026-12-07 (load 1.0 per core)', or the span of dates; '' when no entry records it."""
     entries = _read_entries()
-    meta = [e for e in (entries.get(key(g, threads)) for g in groups) if isinstance(e, dict)]
+    meta = [e for e in (entries.get(key(g, threads)) for g in groups) if isinstance(e, dict) and "measured" in e]
     if not meta:
         return ""
     dates = sorted({e["measured"][:10] for e in meta})
@@ -84,12 +110,14 @@ def when_measured(groups: list[RunSpec], threads: int) -> str:
     return f" on {when}" + (f" (load {max(loads):.1f} per core at most)" if loads else "")
 
 
-def measure(group: RunSpec, threads: int) -> float:
-    """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O)."""
+def measure(group: RunSpec, threads: int) -> tuple[float, float]:
+    """Steps/s per member of ``group`` on this machine with ``threads`` torch threads (no evaluation, no I/O), and the
+    seconds per step of one evaluation episode (all members at once)."""
     from algorithms.api import DemoSet
     from algorithms.core.sac import set_update_mode
+    from harness.env_pool import make_envs
     from harness.envs import get_spec, load_env_demos
-    from harness.protocol import Interaction
+    from harness.protocol import Interaction, evaluate
     from harness.registry import ALGORITHMS
 
     cls = ALGORITHMS[group.algo_class]
@@ -108,9 +136,16 @@ def measure(group: RunSpec, threads: int) -> float:
             t = time.perf_counter()
             for _ in range(MEASURE):
                 inter.step(algo)
-            return MEASURE / (time.perf_counter() - t)
+            rate = MEASURE / (time.perf_counter() - t)
         finally:
             inter.close()
+        envs = make_envs(group.env, len(group.seeds), group.env_workers, "eval")
+        try:
+            t = time.perf_counter()
+            evaluate(algo, envs, list(group.seeds), 0, 1)
+            return rate, (time.perf_counter() - t) / envs.spec_.eval_horizon
+        finally:
+            envs.close()
     finally:
         torch.set_num_threads(old)
 
@@ -129,8 +164,9 @@ def rates(groups: list[RunSpec], threads: int, calibrate: bool | str, log=print)
             load = _load()
             log(f"  calibrating {g.env}/{g.algo} (members={len(g.seeds)}, {threads} thread(s)"
                 + (f", load {load:.1f} per core" if load is not None else "") + ") ...")
-            entries[k] = {"steps_per_s": measure(g, threads), "measured": datetime.now(timezone.utc).isoformat(
-                timespec="seconds"), "load": load}
+            rate, eval_s = measure(g, threads)
+            entries[k] = {"steps_per_s": rate, "eval_s_per_step": eval_s, "measured": datetime.now(
+                timezone.utc).isoformat(timespec="seconds"), "load": load}
             dirty = True
             done.add(k)
         e = entries.get(k)
