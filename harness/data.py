@@ -5,6 +5,8 @@ Layout of an EARL data directory (see ``shared/earl/README.md``)::
     demos/<env>/{forward,reverse}.npz     keys observations, actions, rewards, terminals, next_observations
     assets/tabletop/...                   the tabletop MuJoCo model
     assets/metaworld_earl/...             EARL's copies of the Sawyer models
+    assets/kitchen/...                    EARL's kitchen models (adept_envs, adept_models, third_party/franka)
+    assets/minitaur/...                   EARL's minitaur pen (wall_tile.urdf)
     reference/published_curves.csv.gz     published learning curves (long format)
 
 Search order (first hit wins): an explicit directory (``--data-dir`` / ``HARNESS_DATA_DIR``), the
@@ -318,6 +320,36 @@ SAWYER_ASSET_FILES = (
 )
 
 
+#: EARL's kitchen models as its repository holds them (under ``earl_benchmark/envs/kitchen_assets/``; fetched to
+#: ``assets/kitchen/``): the scene EARL loads, the kitchen objects, the Franka arm, meshes, textures, licences
+KITCHEN_ASSET_FILES = (
+    "adept_envs/adept_envs/franka/assets/franka_kitchen_jntpos_act_ab.xml",
+    "adept_envs/adept_envs/franka/robot/franka_config.xml",
+    "adept_models/LICENSE", "adept_models/README.public.md", "adept_models/scenes/basic_scene.xml",
+    "adept_models/scenes/textures/white_marble_tile.png", "adept_models/scenes/textures/white_marble_tile2.png",
+    *(f"adept_models/kitchen/{n}.xml" for n in ("counters", "hingecabinet", "kettle", "kitchen", "microwave", "oven",
+                                                "slidecabinet")),
+    *(f"adept_models/kitchen/assets/{n}_{part}.xml" for n in ("backwall", "counters", "hingecabinet", "kettle",
+                                                                "microwave", "oven", "slidecabinet")
+      for part in ("asset", "chain")),
+    *(f"adept_models/kitchen/meshes/{n}.stl" for n in (
+        "burnerplate", "burnerplate_mesh", "cabinetbase", "cabinetdrawer", "cabinethandle", "countertop", "faucet",
+        "handle2", "hingecabinet", "hingedoor", "hingehandle", "hood", "kettle", "kettlehandle", "knob", "lightswitch",
+        "lightswitchbase", "micro", "microbutton", "microdoor", "microefeet", "microfeet", "microhandle", "microwindow",
+        "oven", "ovenhandle", "oventop", "ovenwindow", "slidecabinet", "slidedoor", "stoverim", "tile", "wall")),
+    *(f"adept_models/kitchen/textures/{n}.png" for n in ("marble1", "metal1", "tile1", "wood1")),
+    "third_party/franka/LICENSE",
+    *(f"third_party/franka/assets/{n}.xml" for n in ("actuator0", "actuator1", "assets", "basic_scene", "chain0",
+                                                     "chain0_overlay", "chain1", "teleop_actuator")),
+    *(f"third_party/franka/meshes/{kind}/{n}.stl" for kind in ("collision", "visual")
+      for n in ("finger", "hand", *(f"link{i}" for i in range(8)))),
+)
+
+#: EARL's minitaur pen (under ``earl_benchmark/envs/minitaur_assets/``; fetched to ``assets/minitaur/``); the robot
+#: itself comes with pybullet (``pybullet_data``)
+MINITAUR_ASSET_FILES = ("wall_tile.urdf", "original.urdf")
+
+
 def _download(url: str, timeout: float = 60.0) -> bytes:
     """The bytes at ``url``; a network failure is one line that says how to go on without the network."""
     req = urllib.request.Request(url, headers={"User-Agent": "earl-harness"})
@@ -339,7 +371,8 @@ def fetch(
     assets: bool = True,
     log=print,
 ) -> Path:
-    """Download EARL's demonstration pickles (and the tabletop and Sawyer model files) into ``dest`` (the cache),
+    """Download EARL's demonstration pickles (and the tabletop, Sawyer, kitchen and minitaur model files) into ``dest``
+    (the cache),
     converting each pickle to the ``demos/<env>/<direction>.npz`` layout. Files are written
     atomically; an interrupted fetch leaves no half file and can simply be re-run."""
     dest = Path(dest) if dest else cache_dir()
@@ -355,6 +388,8 @@ def fetch(
     if assets:
         files = [(f"tabletop_assets/{n}", f"tabletop/{n}") for n in TABLETOP_ASSET_FILES]
         files += [(f"metaworld_assets/{n}", f"metaworld_earl/{n}") for n in SAWYER_ASSET_FILES]
+        files += [(f"kitchen_assets/{n}", f"kitchen/{n}") for n in KITCHEN_ASSET_FILES]
+        files += [(f"minitaur_assets/{n}", f"minitaur/{n}") for n in MINITAUR_ASSET_FILES]
         for remote, local in files:
             url = f"{base_url}/earl_benchmark/envs/{remote}"
             log(f"fetch {url}")

@@ -88,10 +88,13 @@ def earl_mirror(tmp_path):
     assets.mkdir(parents=True)
     for name in data_mod.TABLETOP_ASSET_FILES:
         (assets / name).write_bytes((SHARED / "assets" / "tabletop" / name).read_bytes())
-    for name in data_mod.SAWYER_ASSET_FILES:
-        p = root / "earl_benchmark" / "envs" / "metaworld_assets" / name
-        p.parent.mkdir(parents=True, exist_ok=True)
-        p.write_bytes((SHARED / "assets" / "metaworld_earl" / name).read_bytes())
+    for remote, local, names in (("metaworld_assets", "metaworld_earl", data_mod.SAWYER_ASSET_FILES),
+                                 ("kitchen_assets", "kitchen", data_mod.KITCHEN_ASSET_FILES),
+                                 ("minitaur_assets", "minitaur", data_mod.MINITAUR_ASSET_FILES)):
+        for name in names:
+            p = root / "earl_benchmark" / "envs" / remote / name
+            p.parent.mkdir(parents=True, exist_ok=True)
+            p.write_bytes((SHARED / "assets" / local / name).read_bytes())
     return root
 
 
@@ -116,9 +119,13 @@ def test_fetch_from_local_http_server(http_server, tmp_path, monkeypatch, capsys
             for k in DEMO_FIELDS:
                 np.testing.assert_array_equal(getattr(got, k), getattr(ref, k))
     assert (dest / "assets" / "tabletop" / "tabletop_manipulation.xml").exists()
-    for name in data_mod.SAWYER_ASSET_FILES:  # the Sawyer models too: every env runs from a fetched cache
-        assert (dest / "assets" / "metaworld_earl" / name).read_bytes() == \
-            (SHARED / "assets" / "metaworld_earl" / name).read_bytes()
+    # the Sawyer, kitchen and minitaur models too: every env runs from a fetched cache
+    for local in ("metaworld_earl", "kitchen", "minitaur"):
+        ref = sorted(p.relative_to(SHARED / "assets" / local) for p in (SHARED / "assets" / local).rglob("*")
+                     if p.is_file())
+        got = sorted(p.relative_to(dest / "assets" / local) for p in (dest / "assets" / local).rglob("*") if p.is_file())
+        assert got == ref and all((dest / "assets" / local / p).read_bytes() == (SHARED / "assets" / local / p)
+                                  .read_bytes() for p in ref), local
     assert not list(dest.rglob("*.tmp"))
     monkeypatch.setenv("HARNESS_CACHE_DIR", str(dest))
     monkeypatch.delenv("HARNESS_DATA_DIR", raising=False)
