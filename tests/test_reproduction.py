@@ -251,6 +251,45 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
+def test_reproduction_tab_shows_return_cells_in_return_units(monkeypatch, tmp_path):
+    """kitchen's and minitaur's cells (suites/earl_returns.yaml) check the deployed return: the table says so, its
+    numbers are whole returns with their bands, and each panel's y axis is the return (not success in [0, 1])."""
+    pytest.importorskip("streamlit")
+    from tests.test_app import run_app
+
+    root = tmp_path / "results"
+    status = {"state": "done", "step": 1_000_000, "total": 1_000_000, "steps_per_s": 20.0, "eta_s": 0.0,
+              "last_success": 0}
+    for s in (0, 1):
+        write_run(root, "earl_returns", "kitchen", "naive", s, range(0, 1_000_001, 10_000),
+                  lambda step: {"deployed_success": 0.0, "deployed_return": -2700.0, "steps_per_s": 20.0,
+                                "wall_s": step / 20}, status)
+    at = run_app(monkeypatch, root, "Reproduction")
+    at.selectbox(key="repro_suite").set_value("earl_returns")
+    at.run()
+    assert not at.exception
+    table = at.dataframe[0].value
+    naive = table[table["method"] == "naive"].iloc[0]
+    assert naive["metric"] == "deployed_return" and naive["verdict"] == "pass" and naive["ours"] == -2700
+    assert naive["accepted"] == "-3342 to -2463" and naive["ours_per_seed"] == "-2700, -2700"
+    charts = at.get("vega_lite_chart")
+    assert len(charts) == 3
+    import json
+
+    def y_axes(node):  # every y encoding in the (layered) Vega-Lite spec
+        if isinstance(node, dict):
+            if isinstance(node.get("encoding"), dict) and "y" in node["encoding"]:
+                yield node["encoding"]["y"]
+            for v in node.values():
+                yield from y_axes(v)
+        elif isinstance(node, list):
+            for v in node:
+                yield from y_axes(v)
+
+    ys = list(y_axes(json.loads(charts[1].proto.spec)))
+    assert ys and all(y.get("title") == "deployed return" and y.get("scale", {}).get("domain") != [0, 1] for y in ys)
+
+
 @requires_data
 def test_criterion_operating_characteristics():
     """The rule's justification (docs/reproduction.md), as numbers: a faithful method passes every check with 2 seeds
