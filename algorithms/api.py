@@ -229,9 +229,10 @@ class Algorithm(ABC):
     #: True: cannot run without demonstrations (a discriminator's positives, a curriculum, the cloned data); the
     #: harness refuses it on an env that has none. False: demos, if any, only seed buffers (empty sets are fine).
     needs_demos: ClassVar[bool] = False
-    #: True: writes states into the goal (initial-state goals, demo-state subgoals, hindsight), so it needs goals that
-    #: are whole states (``goal_dim == state_dim``); the harness refuses it on an env whose goal is only some state
-    #: coordinates (minitaur: the base xy). False: only ever uses the env's own goals.
+    #: True: writes whole states into the goal (demo-state subgoals, hindsight, relabelled demos), so it needs goals
+    #: that are whole states (``goal_dim == state_dim``); the harness refuses it on an env whose goal is only some state
+    #: coordinates (minitaur: the base xy). False: uses the env's own goals, or projects states onto the goal's
+    #: coordinates (``Task.goal_of``: FBRL's and RISC's initial-state goals).
     state_goals: ClassVar[bool] = True
     #: True: learns from the task's reward (``Task.compute_reward``: EARL's dense reward where the env declares one,
     #: as on kitchen and minitaur). False: learns from 1[success] of the goals it sets, which on an env with a dense

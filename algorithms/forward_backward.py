@@ -1,6 +1,7 @@
 """Forward/backward controllers: the machinery FBRL, R3L, MEDAL and MEDAL's ablations share (docs/algorithms.md 6, 7, 9-11).
 
-A forward SAC agent solves the task (sparse task reward on [s', g], the evaluated policy); a backward SAC agent
+A forward SAC agent solves the task (the task reward on [s', g]: EARL's 1[success], or the env's dense reward on
+kitchen and minitaur; the evaluated policy); a backward SAC agent
 "resets" the system in its own way. Per member, the controllers alternate: a phase lasts ``switch_every`` (300) steps,
 or ends early when the forward controller succeeds (and, where ``backward_ends_on_success``, when the backward one
 reaches its own goal: FBRL). EARL's hard reset (every H_T) starts a forward phase with the reset observation's goal.
@@ -16,8 +17,8 @@ step carrying the new goal) in the new controller's buffer, so no transition spa
 
 Subclasses choose through small hooks: the backward buffer's initial contents (:meth:`backward_demos`), the goal of a
 new phase (:meth:`next_goal`; default = MEDAL's: a fresh task goal when the backward phase starts, kept for the
-following forward phase), the backward reward (:meth:`backward_reward`; default the stored task-predicate reward on
-the backward goal), the backward early-success rule (``backward_ends_on_success``), every stored backward state
+following forward phase), the backward reward (:meth:`backward_reward`; default the stored task reward under the
+backward goal), the backward early-success rule (``backward_ends_on_success``), every stored backward state
 (:meth:`on_backward_states`) and extra per-step learning (:meth:`learn_extra`).
 """
 

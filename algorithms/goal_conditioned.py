@@ -7,7 +7,8 @@ ONE goal-conditioned SAC agent serves both directions with ONE replay buffer (14
 - the buffer starts with the forward AND the backward demos, each with its own goal half (14.5);
 - per step (14.6): act on [s_t, g] (uniform random actions during the first ``seed_steps`` steps,
   RISC's ``min_replay_history``, when ``random_warmup``) and ask the early-switch hook on s_t ->
-  env step -> r = terminal = success([s_{t+1}, g]); truncated = not terminal and (phase limit or
+  env step -> terminal = success([s_{t+1}, g]), r = the task reward of [s_{t+1}, g] (1[success], or the env's
+  dense reward on kitchen and minitaur); truncated = not terminal and (phase limit or
   early switch or hard reset) -> store -> after the warm-up one update on a shared batch (the
   subclass's auxiliary critic first, then SAC) -> on terminal/truncated flip the direction and
   start the next phase with the goal hook's goal; a hard reset starts a forward phase instead.

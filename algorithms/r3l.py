@@ -1,7 +1,8 @@
 """R3L: the backward ("perturbation") policy maximises RND novelty (docs/algorithms.md section 7; Zhu et al., ICLR 2020).
 
 The forward policy attempts the task from the new state the backward policy reaches in each trial. State-based, with
-the env's sparse task reward for the forward policy (as in the EARL/MEDAL experiments).
+the env's task reward for the forward policy (as in the EARL/MEDAL experiments: 1[success], or EARL's dense reward
+on kitchen and minitaur).
 
 Fixed by the sources (7.1): forward SAC on the task reward, buffer <- forward demos; backward SAC rewarded by Random
 Network Distillation novelty (Burda et al. 2018): a frozen random target f and a trained, deeper predictor f^ map the

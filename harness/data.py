@@ -6,7 +6,7 @@ Layout of an EARL data directory (see ``shared/earl/README.md``)::
     assets/tabletop/...                   the tabletop MuJoCo model
     assets/metaworld_earl/...             EARL's copies of the Sawyer models
     assets/kitchen/...                    EARL's kitchen models (adept_envs, adept_models, third_party/franka)
-    assets/minitaur/...                   EARL's minitaur pen (wall_tile.urdf)
+    assets/minitaur/...                   EARL's minitaur pen (wall_tile.urdf, original.urdf)
     reference/published_curves.csv.gz     published learning curves (long format)
 
 Search order (first hit wins): an explicit directory (``--data-dir`` / ``HARNESS_DATA_DIR``), the

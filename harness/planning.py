@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from algorithms.update_modes import UPDATES
-from harness.envs import UnknownEnvError, check_env, env_info, load_env_demos
+from harness.envs import EnvUnavailableError, UnknownEnvError, check_env, env_info, load_env_demos
 from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec
 from harness.provenance import git_sha
@@ -66,10 +66,21 @@ def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
         raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
 
 
-def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
-    """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env."""
+def _product_units(suite: dict[str, Any], req: RunRequest, left_out: list[str]) -> list[Unit]:
+    """Every algorithm x every env of a suite (or of the ad-hoc ``algo=``/``env=`` words), one budget per env. A
+    ``runnable_only`` suite leaves out an env that cannot be built here (minitaur without pybullet), noted in
+    ``left_out``."""
     algos = list(req.algos) or names("algo", suite.get("algos") or [])
     envs = list(req.envs) or names("env", suite.get("envs") or [])
+    if suite.get("runnable_only"):
+        for e in list(envs):
+            try:
+                check_env(e)
+            except EnvUnavailableError as err:
+                envs.remove(e)
+                left_out.append(f"every algorithm on {e}: {err}")
+            except UnknownEnvError:
+                pass  # named by _check_envs_algos below
     _check_envs_algos(envs, algos)
     seeds = list(req.seeds) if req.seeds is not None else parse_seeds(suite.get("seeds", 1))
     members = RUN_KEYS["members"].parse("members", suite["members"]) if "members" in suite else None
@@ -89,7 +100,7 @@ def _product_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
 CELL_KEYS = {"algo", "env", "steps", "seeds", "members", "name", "config", "checks", "widen"}
 
 
-def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
+def _cell_units(suite: dict[str, Any], req: RunRequest, left_out: list[str]) -> list[Unit]:
     """A suite of ``cells`` (each its own algorithm, env, budget and seeds); ``algo=``/``env=`` select cells: an
     ``algo=`` word that is a cell's name selects the cells of that name, any other word every cell of that algorithm
     (``algo=vaprl_risc`` in the VaPRL ablation is its one base cell, ``algo=vaprl`` every variant built on ``vaprl``);
@@ -130,50 +141,45 @@ def _cell_units(suite: dict[str, Any], req: RunRequest) -> list[Unit]:
     return units
 
 
-def check_demos_needed(name: str, cls, cfg, env: str) -> None:
-    """:class:`ConfigError` (one line) when algorithm ``cls`` with ``cfg`` needs demonstrations (``requires_demos``)
-    and ``env`` declares it has none (``EnvInfo.demos``)."""
-    from harness.registry import ALGORITHMS
+class CannotRunThere(ConfigError):
+    """An algorithm that cannot run on an env by its nature (demonstrations, reward, goal shape): the pairs a
+    ``runnable_only`` suite leaves out. ``reason`` is the sentence without the algorithm's name."""
 
-    if env_info(env).demos or not cls.requires_demos(cfg):
-        return
-    able = [a for a, c in ALGORITHMS.items() if not c.requires_demos(c.Config())]
-    raise ConfigError(f"algo={name} needs demonstrations and env={env} has none (EARL ships none for it); "
-                      f"algorithms that run without demonstrations: {', '.join(able)}")
+    def __init__(self, message: str, reason: str):
+        super().__init__(message)
+        self.reason = reason
 
 
-def check_task_reward(name: str, cls, env: str) -> None:
-    """:class:`ConfigError` (one line) when ``env`` declares a dense reward (``EnvSpec.reward_fn``: EARL trained on it)
-    and algorithm ``cls`` learns from 1[success] instead (``task_reward`` False)."""
-    from harness.registry import ALGORITHMS
-
-    info = env_info(env)
-    if info.spec.reward_fn is None or cls.task_reward:
-        return
-    able = [a for a, c in ALGORITHMS.items() if c.task_reward and (info.demos or not c.requires_demos(c.Config()))]
-    raise ConfigError(f"algo={name} learns from 1[success] and env={env}'s reward is dense (EARL trained on it); "
-                      f"algorithms that learn from it: {', '.join(able)}")
-
-
-def check_goal_shape(name: str, cls, env: str) -> None:
-    """:class:`ConfigError` (one line) when algorithm ``cls`` writes states into the goal (``state_goals``) and
-    ``env``'s goal is only some of its state coordinates (``EnvSpec.goal_idx``: minitaur's base xy)."""
-    from harness.registry import ALGORITHMS
-
+def why_not_on(cls, cfg, env: str) -> str | None:
+    """Why algorithm ``cls`` configured by ``cfg`` cannot run on ``env``, or None: it needs demonstrations the env does
+    not have (``requires_demos``, ``EnvInfo.demos``), it learns from 1[success] where EARL trained on a dense reward
+    (``task_reward``, ``EnvSpec.reward_fn``), or it writes whole states into goals of a few state coordinates
+    (``state_goals``, ``EnvSpec.goal_idx``: minitaur's base xy)."""
     info = env_info(env)
     spec = info.spec
-    if spec.goal_dim == spec.state_dim or not cls.state_goals:
-        return
-    able = [a for a, c in ALGORITHMS.items() if not c.state_goals and (info.demos or not c.requires_demos(c.Config()))]
-    raise ConfigError(f"algo={name} sets states as goals and env={env}'s goal is {spec.goal_dim} of its "
-                      f"{spec.state_dim} state coordinates; algorithms that run on it: {', '.join(able)}")
+    if not info.demos and cls.requires_demos(cfg):
+        return f"needs demonstrations and env={env} has none (EARL ships none for it)"
+    if spec.reward_fn is not None and not cls.task_reward:
+        return f"learns from 1[success] and env={env}'s reward is dense (EARL trained on it)"
+    if spec.goal_dim != spec.state_dim and cls.state_goals:
+        return (f"sets whole states as goals and env={env}'s goal is {spec.goal_dim} of its {spec.state_dim} state "
+                "coordinates")
+    return None
+
+
+def runs_on(env: str) -> list[str]:
+    """The registered algorithms that run on ``env`` with their default settings."""
+    from harness.registry import ALGORITHMS
+
+    return [a for a, c in ALGORITHMS.items() if why_not_on(c, c.Config(), env) is None]
 
 
 def check_runs_on(name: str, cls, cfg, env: str) -> None:
-    """:class:`ConfigError` (one line) when algorithm ``cls`` configured by ``cfg`` cannot run on ``env``."""
-    check_goal_shape(name, cls, env)  # first: its list of what runs also leaves out what needs demos
-    check_demos_needed(name, cls, cfg, env)
-    check_task_reward(name, cls, env)
+    """:class:`CannotRunThere` (one line, naming what runs there instead) when algorithm ``cls`` configured by ``cfg``
+    cannot run on ``env``; :class:`ConfigError` when its settings do not fit the env (``check_task``)."""
+    why = why_not_on(cls, cfg, env)
+    if why is not None:
+        raise CannotRunThere(f"algo={name} {why}; algorithms that run on env={env}: {', '.join(runs_on(env))}", why)
     try:
         cls.check_task(cfg, env_info(env).spec)
     except ValueError as e:
@@ -221,7 +227,8 @@ def build_plan(req: RunRequest) -> Plan:
     if not isinstance(suite_cfg, dict):
         raise ConfigError("suite key 'config' must map algorithm names (or 'all') to settings")
 
-    units = (_cell_units if "cells" in suite else _product_units)(suite, req)
+    left_out: list[str] = []
+    units = (_cell_units if "cells" in suite else _product_units)(suite, req, left_out)
     from harness.registry import ALGORITHMS  # after the names are checked: a bad word is answered before torch loads
 
     selected = {u.algo_class for u in units}
@@ -230,17 +237,17 @@ def build_plan(req: RunRequest) -> Plan:
         raise ConfigError(f"override(s) for {', '.join(stray)} match no selected algorithm "
                           f"(selected: {', '.join(sorted(selected)) or 'none'})")
     check_all_keys([ALGORITHMS[u.algo_class].Config for u in units], suite_cfg, req.config)
-    configs, left_out = [], []
+    configs = []
     for u in units:
         cls = ALGORITHMS[u.algo_class]
         cell_layer = {u.algo_class: u.config} if u.config else {}
         cfg = resolve_algo_config(cls.Config, u.algo_class, u.env, suite_cfg, cell_layer, req.config)
         try:
             check_runs_on(u.name, cls, cfg, u.env)
-        except ConfigError as e:
+        except CannotRunThere as e:  # a setting that does not fit the env is an error even so
             if not suite.get("runnable_only"):
                 raise
-            left_out.append(f"{u.name} on {u.env}: {str(e).split('; ')[0].removeprefix(f'algo={u.name} ')}")
+            left_out.append(f"{u.name} on {u.env}: {e.reason}")
             continue
         configs.append((u, cfg))
     if not configs:

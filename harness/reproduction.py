@@ -23,6 +23,7 @@ from algorithms.api import parse_int
 from harness import curve_checks as C
 from harness.curve_checks import CurveRule
 from harness.envs import ENVS
+from harness.results import RETURN_ENVS
 from harness.suites import ConfigError, load_suite
 
 METRIC = "deployed_success"
@@ -32,7 +33,9 @@ def metric_of(env: str) -> str:
     """What ``env``'s published curves measure (``EnvInfo.published_metric``): ``deployed_success``, or
     ``deployed_return`` (kitchen, minitaur)."""
     info = ENVS.get(env)
-    return info.published_metric if info is not None else METRIC
+    if info is None:  # dhand_lightbulb: EARL published its returns but never released it
+        return "deployed_return" if env in RETURN_ENVS else METRIC
+    return info.published_metric
 
 
 @dataclass(frozen=True)
@@ -133,7 +136,8 @@ def load_ladder(suite: str) -> Ladder:
             except (TypeError, ValueError):
                 raise ConfigError(f"suite {name!r}, cell {n + 1}: widen must be a number, got {cell_widen!r}") from None
             if not (0 <= cell_widen <= (1 if metric == METRIC else float("inf"))):
-                raise ConfigError(f"suite {name!r}, cell {n + 1}: widen {cell_widen:g} is out of range for {metric}")
+                raise ConfigError(f"suite {name!r}, cell {n + 1}: widen {cell_widen:g} is out of range for {metric} "
+                                  f"({'0 to 1' if metric == METRIC else 'at least 0'})")
         cells.append(Cell(str(c.get("name") or c["algo"]), str(c["algo"]), str(c["env"]), int(c["steps"]),
                           _seed_list(c.get("seeds", d.get("seeds", 1))), tuple(checks),
                           tuple(sorted((c.get("config") or {}).items())), cell_widen))
@@ -267,6 +271,11 @@ def _yaml_value(v) -> str:
     return str(v).lower() if isinstance(v, bool) else str(v)
 
 
+def range_text(lo: float, hi: float, metric: str = METRIC) -> str:
+    """``0.14-0.69`` for a success rate, ``-2248 to 136`` for a return."""
+    return f"{value_text(lo, metric)}{'-' if metric == METRIC else ' to '}{value_text(hi, metric)}"
+
+
 def value_text(x: float, metric: str = METRIC) -> str:
     """A window mean as the tables show it: a success rate with 2 decimals, a return rounded to a whole number."""
     if np.isnan(x):
@@ -292,7 +301,7 @@ def table_markdown(t: pd.DataFrame) -> str:
         first = (r.method, r.env, r.config) not in seen
         seen.add((r.method, r.env, r.config))
         extra = (f" {r.curve} | {r.first_success} |" if first else " | |") if whole else ""
-        span = f"{f(r.published_min)}{'-' if metric == METRIC else ' to '}{f(r.published_max)}"
+        span = range_text(r.published_min, r.published_max, metric)
         lines.append(f"| {r.method} | {config}{r.env} | {r.budget / 1e6:g}M | {r.window} | {f(r.published)} "
                      f"({span}) | {ours} ({seeds}) | {r.verdict} |{extra}")
     return "\n".join(lines) + "\n"

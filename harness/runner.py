@@ -154,7 +154,7 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     evals = dict(zip(todo, calibration.eval_costs([plan.groups[i] for i in todo], threads)))
     work = []
     for i in todo:  # (steps left per member, its effective rate: evaluations included)
-        left = (total[i] - done[i]) // len(plan.groups[i].seeds)
+        left = max((total[i] - done[i]) // len(plan.groups[i].seeds), 1)
         work.append((left, left / calibration.group_seconds(plan.groups[i], left, rates[i], evals[i])))
     est = calibration.estimate(work, plan.workers)
     when = calibration.when_measured([plan.groups[i] for i in todo], threads)

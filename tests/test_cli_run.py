@@ -35,7 +35,7 @@ def finished(*args, timeout=1500):
     return out
 
 
-#: what runs on EARL's kitchen and minitaur (no demonstrations; a dense reward; minitaur's goal is the base xy)
+#: what runs on EARL's kitchen and minitaur (no demonstrations there, and EARL's dense reward to learn from)
 RETURN_ENV_ALGOS = ("naive", "oracle", "fbrl", "r3l", "risc", "risc_no_tab")
 
 
@@ -430,7 +430,7 @@ def test_quick_answers_never_load_torch(argv):
 
 
 @requires_data
-def test_runnable_only_leaves_out_what_cannot_run_and_says_why(tmp_path, capsys):
+def test_runnable_only_leaves_out_what_cannot_run_and_says_why(tmp_path, capsys, monkeypatch):
     """A suite with runnable_only leaves out the pairs that cannot run (with the reason); without it the first such pair
     is the usual one-line error; a suite where nothing is left is an error too."""
     from harness.planning import plan_words
@@ -458,7 +458,23 @@ def test_runnable_only_leaves_out_what_cannot_run_and_says_why(tmp_path, capsys)
     suite.write_text(body + "runnable_only: yes please\n")
     assert main(["run", f"suite={suite}", f"results={tmp_path / 'r'}", "--dry-run"]) == 2
     assert "runnable_only must be true or false" in capsys.readouterr().err
-    # all of EARL: 14 methods on the three Sawyer/tabletop tasks, the 6 that need no demonstrations on the other two
+    # a setting that does not fit an env is an error even so: runnable_only leaves out only what cannot run there
+    suite.write_text("algos: [vaprl]\nenvs: [tabletop_manipulation]\nsteps: 400\nrunnable_only: true\n")
+    with pytest.raises(ConfigError, match="goal_coords"):
+        plan_words([f"suite={suite}", "vaprl.goal_coords=0,1,99", f"results={tmp_path / 'r'}"])
+    # an env whose simulator is not installed here is left out too, with its reason
+    from harness.envs import ENVS
+
+    monkeypatch.setattr(type(ENVS["minitaur"]), "unavailable",
+                        lambda self: "env minitaur needs pybullet, which is not installed" if self.name == "minitaur"
+                        else None)
+    suite.write_text("algos: [naive]\nenvs: [tabletop_manipulation, minitaur]\nsteps: 400\nrunnable_only: true\n")
+    plan = plan_words([f"suite={suite}", f"results={tmp_path / 'r'}"])
+    assert [g.env for g in plan.groups] == ["tabletop_manipulation"]
+    assert plan.left_out == ("every algorithm on minitaur: env minitaur needs pybullet, which is not installed",)
+    monkeypatch.undo()
+    # all of EARL: 14 methods on the three Sawyer/tabletop tasks; on kitchen and minitaur the 6 that need no
+    # demonstrations and learn from the env's dense reward
     plan = plan_words(["suite=earl_all", f"results={tmp_path / 'r'}"])
     pairs = {(g.algo, g.env) for g in plan.groups}
     assert len(pairs) == 14 * 3 + 2 * len(RETURN_ENV_ALGOS) and len(plan.left_out) == 16

@@ -359,13 +359,25 @@ def test_gym_make_and_render():
     e.close()
 
 
-def test_algorithms_that_set_states_as_goals_are_refused(capsys, tmp_path):
-    """MEDAL and VaPRL write demo states into goals (and need demos EARL never shipped for minitaur): one line."""
-    for algo in ("medal", "vaprl"):
+def test_algorithms_that_cannot_run_on_minitaur_are_refused_with_the_reason(capsys, tmp_path):
+    """MEDAL and VaPRL need demonstrations (EARL ships none for minitaur), FBRL+VICE learns from 1[success]: one line
+    each, naming what runs there; an algorithm that would write whole states into minitaur's xy goal is refused too."""
+    from harness.planning import CannotRunThere, check_runs_on, why_not_on
+    from harness.registry import ALGORITHMS
+
+    for algo, why in (("medal", "needs demonstrations"), ("vaprl", "needs demonstrations"),
+                      ("fbrl_vice", "learns from 1[success]")):
         assert main(["run", f"algo={algo}", "env=minitaur", f"results={tmp_path / 'r'}", "--dry-run"]) == 2
         err = capsys.readouterr().err.strip()
-        assert err.count("\n") == 0 and "sets states as goals" in err and "naive, oracle" in err, err
-        assert "fbrl" in err and "risc" in err, err  # they project states onto the goal's coordinates
+        assert err.count("\n") == 0 and why in err, err
+        assert err.endswith("algorithms that run on env=minitaur: naive, oracle, fbrl, r3l, risc, risc_no_tab"), err
+    naive = ALGORITHMS["naive"]
+    whole_states = type("WholeStates", (naive,), {"state_goals": True})
+    assert why_not_on(whole_states, naive.Config(), "minitaur").startswith("sets whole states as goals and "
+                                                                             "env=minitaur's goal is 2 of its 30")
+    assert why_not_on(whole_states, naive.Config(), "sawyer_door") is None
+    with pytest.raises(CannotRunThere, match="^algo=w sets whole states as goals"):
+        check_runs_on("w", whole_states, naive.Config(), "minitaur")
 
 
 def _member_step(algo, spec, obs, next_obs):
@@ -429,6 +441,22 @@ def test_fbrl_r3l_and_risc_project_goals_and_learn_from_the_dense_reward():
     assert np.array_equal(np.concatenate(again.backward_pools), pools)  # drawn from each member's seed
     home = RISC(spec, demos, RISCConfig(backward_goal="initial_state", **cfg), [0], torch.device("cpu"))
     assert np.array_equal(home.backward_pools[0], start_xy[None])
+    # a forward phase of one step, then the backward phase heads for the member's pool goal; both steps stored with
+    # the dense reward under their own goal
+    one = RISC(spec, demos, RISCConfig(phase_step_limit=1, **cfg), [0, 1], torch.device("cpu"))
+    o = obs_at(spec.goal_states[0])
+    one.on_reset(o, np.ones(2, dtype=bool))
+    forward_goals = one.goal.copy()  # task goals drawn for the first phase
+    _member_step(one, spec, o, (o := obs_at(spec.goal_states[0])))
+    assert (one.direction == BACKWARD).all() and np.allclose(one.goal, np.concatenate(one.backward_pools))
+    _member_step(one, spec, o, obs_at(spec.goal_states[0]))
+    n = one.buffer.size
+    for i in range(2):
+        steps = ~one.buffer.data["first"][i, : n[i]].numpy()  # transitions, not segment starts
+        obs = one.buffer.data["obs"][i, : n[i]].numpy()[steps][-2:]  # the forward step, then the backward one
+        reward = one.buffer.data["reward"][i, : n[i]].numpy()[steps][-2:]
+        assert np.allclose(obs[0, 30:], forward_goals[i]) and np.allclose(obs[1, 30:], one.backward_pools[i][0])
+        assert np.allclose(reward, spec.compute_reward(obs).astype(np.float32)) and (reward < 0).all()
     # on an env whose goal is the whole state both choices are EARL's initial states
     door = get_spec("sawyer_door")
     for how in ("reset_observation", "initial_state"):

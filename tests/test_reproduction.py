@@ -270,7 +270,7 @@ def test_reproduction_tab_shows_return_cells_in_return_units(monkeypatch, tmp_pa
     assert not at.exception
     table = at.dataframe[0].value
     naive = table[table["method"] == "naive"].iloc[0]
-    assert naive["metric"] == "deployed_return" and naive["verdict"] == "pass" and naive["ours"] == -2700
+    assert naive["metric"] == "deployed_return" and naive["verdict"] == "pass" and naive["ours"] == "-2700"
     assert naive["accepted"] == "-3342 to -2463" and naive["ours_per_seed"] == "-2700, -2700"
     charts = at.get("vega_lite_chart")
     assert len(charts) == 3

@@ -39,20 +39,23 @@ def tab_reproduction(root: str, sig: tuple) -> None:
                                               for s in ("pass", "fail", "running")))
     f = R.value_text
     view = t.assign(ours_per_seed=[", ".join(f(x, m) for x in v) for v, m in zip(t["ours_per_seed"], t["metric"])],
-                    published_range=[f"{f(a, m)} to {f(b, m)}" for a, b, m in zip(t["published_min"],
-                                                                                   t["published_max"], t["metric"])],
-                    accepted=[f"{f(a, m)} to {f(b, m)}" for (a, b), m in zip(t["band"], t["metric"])])
+                    published=[f(x, m) for x, m in zip(t["published"], t["metric"])],
+                    ours=[f(x, m) for x, m in zip(t["ours"], t["metric"])],
+                    published_range=[R.range_text(a, b, m) for a, b, m in zip(t["published_min"], t["published_max"],
+                                                                               t["metric"])],
+                    accepted=[R.range_text(a, b, m) for (a, b), m in zip(t["band"], t["metric"])])
     whole = ["curve", "first_success"] if "curve" in t else []
     st.dataframe(view[["method", "env", "metric", "budget", "seeds", "window", "published", "published_range", "accepted", "ours",
                        "ours_per_seed", "verdict", *whole]], hide_index=True,
-                 column_config={"published": st.column_config.NumberColumn("published mean", format="%.2f"),
-                                "ours": st.column_config.NumberColumn("ours: seed mean", format="%.2f"),
+                 column_config={"published": st.column_config.TextColumn("published mean"),
+                                "ours": st.column_config.TextColumn("ours: seed mean"),
                                 "budget": st.column_config.NumberColumn("budget", format="%d"),
                                 "verdict": st.column_config.TextColumn("final window"),
                                 "curve": st.column_config.TextColumn("whole curve (every 100k window)"),
                                 "first_success": st.column_config.TextColumn("first success (>= 0.5)")})
     own = sorted({f"{c.env} {c.widen:g}" for c in ladder.cells if c.widen is not None})
-    widen = f"{ladder.widen:g}" + (f" (in the metric's units; cells of their own: {', '.join(own)})" if own else "")
+    suite_w = any(c.widen is None for c in ladder.cells)
+    widen = ", ".join(([f"{ladder.widen:g}"] if suite_w else []) + ([f"in return units: {', '.join(own)}"] if own else []))
     st.caption(f"A check passes when our seed-mean of the window means lies in [published min - w, published max + w], "
                f"w = {widen} (the per-seed range of the published seeds, widened); it is running "
                "until every seed has all its evaluations in the window (\"pass whatever the rest scores\": no outcome of "
