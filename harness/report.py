@@ -126,6 +126,7 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
     from harness import ladder_provenance as P
     from harness import reproduction as R
     from harness.data import DataNotFoundError
+    from harness.ladder_figure import plot_ladder
     from harness.results import load_published
 
     ladder = R.load_ladder(suite)
@@ -135,7 +136,7 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
         print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
         published = None
     written = []
-    fig = R.plot_ladder(ladder, df, published)
+    fig = plot_ladder(ladder, df, published)
     for ext in ("png", "pdf"):
         p = out / f"reproduction.{ext}"
         fig.savefig(p, dpi=150 if ext == "png" else None, bbox_inches="tight")

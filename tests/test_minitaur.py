@@ -362,8 +362,8 @@ def test_gym_make_and_render():
 def test_algorithms_that_cannot_run_on_minitaur_are_refused_with_the_reason(capsys, tmp_path):
     """MEDAL and VaPRL need demonstrations (EARL ships none for minitaur), FBRL+VICE learns from 1[success]: one line
     each, naming what runs there; an algorithm that would write whole states into minitaur's xy goal is refused too."""
-    from harness.planning import CannotRunThere, check_runs_on, why_not_on
     from harness.registry import ALGORITHMS
+    from harness.runnable import CannotRunThere, check_runs_on, why_not_on
 
     for algo, why in (("medal", "needs demonstrations"), ("vaprl", "needs demonstrations"),
                       ("fbrl_vice", "learns from 1[success]")):

@@ -20,9 +20,9 @@ from algorithms.update_modes import UPDATES
 from harness.backends import use_allocator
 from harness.command_keys import BENCH
 from harness.envs import check_env, get_spec, load_env_demos
-from harness.planning import check_runs_on
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
+from harness.runnable import check_runs_on
 from harness.suites import resolve_algo_config
 from harness.words import UsageError, optional_integer
 
