@@ -159,7 +159,7 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
 
 def report_cli(overrides: list[str]) -> int:
     from harness.data import DataNotFoundError
-    from harness.results import load, load_published
+    from harness.results import RETURN_ENVS, load, load_published
 
     ov = parse(overrides)
     for key in ("results", "out", "suite", "doc"):
@@ -170,7 +170,7 @@ def report_cli(overrides: list[str]) -> int:
         raise ConfigError(f"results directory not found: {results}; run `harness run suite=...` first or pass results=DIR")
     suite = ov.get("suite")
     out = Path(ov["out"]) if "out" in ov else results / "report" / (suite or "all")
-    metric = ov.get("metric", "deployed_success")
+    metric = ov.get("metric", "deployed_success")  # deployed_return where every env selected publishes returns (below)
     if metric not in CURVE_METRICS:
         raise ConfigError(f"unknown metric {metric!r} for curves; known: {', '.join(CURVE_METRICS)}")
     step_opt = ov.get("step", "last")
@@ -203,6 +203,8 @@ def report_cli(overrides: list[str]) -> int:
         df = df[df["suite"] == suite]
         if df.empty:
             raise ConfigError(f"no results for suite {suite!r} under {results}; suites with results: {', '.join(known)}")
+    if "metric" not in ov and df["env"].isin(RETURN_ENVS).all():
+        metric = "deployed_return"  # kitchen and minitaur: the published curves are returns
     if not (df["metric"] == "deployed_success").any():
         raise ConfigError(f"no deployed_success rows under {results}" + (f" for suite {suite!r}" if suite else ""))
     if isinstance(step, int) and step > (furthest := int(df["step"].max())):

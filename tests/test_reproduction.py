@@ -251,19 +251,48 @@ def test_reproduction_tab(monkeypatch, tmp_path):
     assert set(at.dataframe[0].value["verdict"]) == {"not started"}
 
 
+def _write_kitchen_naive(root: Path, value: float = -2700.0) -> Path:
+    status = {"state": "done", "step": 1_000_000, "total": 1_000_000, "steps_per_s": 20.0, "eta_s": 0.0,
+              "last_success": 0}
+    for s in (0, 1):
+        write_run(root, "earl_returns", "kitchen", "naive", s, range(0, 1_000_001, 10_000),
+                  lambda step: {"deployed_success": 0.0, "deployed_return": value, "steps_per_s": 20.0,
+                                "wall_s": step / 20}, status)
+    return root
+
+
+def test_report_of_return_cells_speaks_returns(tmp_path, capsys):
+    """`harness report suite=earl_returns`: the verdict table in returns, and the curves of kitchen's deployed return
+    (every env of the suite publishes returns), not its success rate."""
+    from harness.report import report_cli
+
+    root = _write_kitchen_naive(tmp_path / "results")
+    out = tmp_path / "out"
+    assert report_cli(["suite=earl_returns", f"results={root}", f"out={out}", "published=none"]) == 0
+    md = (out / "reproduction.md").read_text()
+    assert "| naive | kitchen | 1M | 900k-1000k | -2838 (-3078 to -2727) | -2700 (-2700, -2700) | pass |" in md
+    assert (out / "curves.png").exists() and (out / "reproduction.png").exists()
+    from harness import report as rep
+
+    seen = []
+    real = rep.plot_curves
+    rep.plot_curves = lambda curves, pub, metric: (seen.append(metric), real(curves, pub, metric))[1]
+    try:
+        assert report_cli(["suite=earl_returns", f"results={root}", f"out={out}", "published=none"]) == 0
+        assert report_cli(["suite=earl_returns", f"results={root}", f"out={out}", "published=none",
+                           "metric=deployed_success"]) == 0
+    finally:
+        rep.plot_curves = real
+    assert seen == ["deployed_return", "deployed_success"]
+
+
 def test_reproduction_tab_shows_return_cells_in_return_units(monkeypatch, tmp_path):
     """kitchen's and minitaur's cells (suites/earl_returns.yaml) check the deployed return: the table says so, its
     numbers are whole returns with their bands, and each panel's y axis is the return (not success in [0, 1])."""
     pytest.importorskip("streamlit")
     from tests.test_app import run_app
 
-    root = tmp_path / "results"
-    status = {"state": "done", "step": 1_000_000, "total": 1_000_000, "steps_per_s": 20.0, "eta_s": 0.0,
-              "last_success": 0}
-    for s in (0, 1):
-        write_run(root, "earl_returns", "kitchen", "naive", s, range(0, 1_000_001, 10_000),
-                  lambda step: {"deployed_success": 0.0, "deployed_return": -2700.0, "steps_per_s": 20.0,
-                                "wall_s": step / 20}, status)
+    root = _write_kitchen_naive(tmp_path / "results")
     at = run_app(monkeypatch, root, "Reproduction")
     at.selectbox(key="repro_suite").set_value("earl_returns")
     at.run()
