@@ -224,3 +224,26 @@ def test_each_tab_opens_on_its_own_view_and_never_pools_suites(monkeypatch, mixe
     assert "| MEDAL |" not in md
     at = run_app(monkeypatch, mixed, "Ablations", suite="all")
     assert "Imitation (BC / GAIL vs MEDAL) · imitation" in texts(at, "subheader")
+
+
+def test_curves_of_return_envs_open_on_the_return_with_earls_curves(monkeypatch, tmp_path):
+    """Runs on kitchen only: the curves tab opens on the deployed return (what the published curves measure there)
+    with EARL's own curves overlaid (kitchen's are source earl_benchmark); a Sawyer selection keeps success."""
+    from harness.synthetic import write_run
+
+    status = {"state": "done", "step": 100_000, "total": 100_000, "steps_per_s": 20.0, "eta_s": 0.0, "last_success": 0}
+    for s in (0, 1):
+        write_run(tmp_path, "mine", "kitchen", "naive", s, range(0, 100_001, 10_000),
+                  lambda step: {"deployed_success": 0.0, "deployed_return": -2700.0 + step / 1000,
+                                "steps_per_s": 20.0, "wall_s": step / 20}, status)
+    at = run_app(monkeypatch, tmp_path, "Learning curves")
+    assert at.selectbox(key="curve_metric").value == "deployed_return"
+    assert at.multiselect(key="sources").value == ["risc_paper", "earl_benchmark"]
+    c = at.dataframe[0].value
+    assert c["mean"].min() == pytest.approx(-2700.0) and len(at.get("vega_lite_chart")) == 1
+
+
+def test_curves_of_sawyer_envs_open_on_success(monkeypatch, results):
+    at = run_app(monkeypatch, results, "Learning curves")
+    assert at.selectbox(key="curve_metric").value == "deployed_success"
+    assert at.multiselect(key="sources").value == ["risc_paper"]

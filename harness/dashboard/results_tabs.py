@@ -14,11 +14,13 @@ from harness.dashboard.data import (
     Sel,
     curves_for,
     evidence_for,
+    filtered,
     load_published_curves,
     published_curves_for,
     table1_for,
 )
 from harness.labels import env_label
+from harness.results import RETURN_ENVS
 from harness.run_status import format_duration, run_status, status_counts
 from harness.tables import PUBLISHED_TABLE1_SOURCE, table1_csv, table1_latex, table1_markdown
 
@@ -63,14 +65,19 @@ def tab_runs(root: str, tuning: bool) -> None:
 
 def tab_curves(root, sig, sel: Sel) -> None:
     c1, c2, c3, c4 = st.columns([2, 2, 2, 2])
-    metric = c1.selectbox("metric", list(CURVE_METRICS), format_func=CURVE_METRICS.get, key="curve_metric")
+    data = filtered(root, sig, sel)
+    envs = set(sel.envs) or (set(data["env"].unique()) if len(data) else set())
+    returns = bool(envs) and envs <= RETURN_ENVS  # kitchen, minitaur: the published curves are returns
+    metric = c1.selectbox("metric", list(CURVE_METRICS), format_func=CURVE_METRICS.get, key="curve_metric",
+                          index=list(CURVE_METRICS).index("deployed_return") if returns else 0)
     window = c2.slider("smoothing (moving average over evaluations)", 1, 25, 1, key="smooth")
     band_label = c3.radio("band", ["standard error", "95% bootstrap CI"], key="band", horizontal=True)
     grid = c4.selectbox("common grid", ["auto", "common", "interp"], key="grid",
                         help="common: steps every seed evaluated at; interp: linear interpolation onto the union "
                              "of steps inside the range all seeds cover; auto: common unless too sparse")
     p1, p2 = st.columns([3, 1])
-    sources = p1.multiselect("overlay published curves (dashed)", SOURCES, default=["risc_paper"], key="sources")
+    sources = p1.multiselect("overlay published curves (dashed)", SOURCES, key="sources",
+                             default=["risc_paper"] + (["earl_benchmark"] if "kitchen" in envs else []))
     clip = p2.checkbox("clip published to our step range", value=True, key="clip")
     ci = band_label.startswith("95")
     c = curves_for(root, sig, sel, metric, window, grid, ci)
