@@ -16,12 +16,13 @@ REPORT: KeyHelp = {
     "suite": ("all runs", "a suite's runs only (a suite with cells also gets the reproduction verdicts)"),
     "results": ("results", "results directory to read"),
     "out": ("<results>/report/<suite or all>", "directory the figures and tables are written to"),
-    "metric": ("deployed_success", "curve metric: " + ", ".join(CURVE_METRICS)),
+    "metric": ("deployed_success", "curve metric: " + ", ".join(CURVE_METRICS)
+               + " (deployed_return when every env publishes returns: kitchen, minitaur)"),
     "step": ("last", "Table 1's step: last (each run's last evaluation), matched (the largest step every run in the "
                      "env reached) or N (the last evaluation at or before N)"),
     "smooth": ("1", "moving average over K evaluations, curves only"),
     "published": ("risc_paper", "published curves beside ours: " + ", ".join(PUBLISHED_SOURCES)
-                                + " (comma list), or none"),
+                                + " (comma list), or none; earl_benchmark is added for kitchen"),
     "doc": ("none", "a Markdown file whose <!-- table:SUITE --> table is rewritten, figure drawn beside it"),
 }
 SHIP: KeyHelp = {

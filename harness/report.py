@@ -205,6 +205,8 @@ def report_cli(overrides: list[str]) -> int:
             raise ConfigError(f"no results for suite {suite!r} under {results}; suites with results: {', '.join(known)}")
     if "metric" not in ov and df["env"].isin(RETURN_ENVS).all():
         metric = "deployed_return"  # kitchen and minitaur: the published curves are returns
+    if "published" not in ov and (df["env"] == "kitchen").any():
+        srcs.append("earl_benchmark")  # kitchen's published curves are EARL's own
     if not (df["metric"] == "deployed_success").any():
         raise ConfigError(f"no deployed_success rows under {results}" + (f" for suite {suite!r}" if suite else ""))
     if isinstance(step, int) and step > (furthest := int(df["step"].max())):

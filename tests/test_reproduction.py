@@ -284,6 +284,20 @@ def test_report_of_return_cells_speaks_returns(tmp_path, capsys):
     finally:
         rep.plot_curves = real
     assert seen == ["deployed_return", "deployed_success"]
+    # without published=: kitchen's curves are overlaid from EARL's own numbers (source earl_benchmark)
+    pubs = []
+    real_select = rep.A.select
+    def spy(df, metric=None, **eq):
+        if "source" in eq:
+            pubs.append(tuple(eq["source"]))
+        return real_select(df, metric, **eq)
+
+    rep.A.select = spy
+    try:
+        assert report_cli(["suite=earl_returns", f"results={root}", f"out={out}"]) == 0
+    finally:
+        rep.A.select = real_select
+    assert pubs == [("risc_paper", "earl_benchmark")]
 
 
 def test_reproduction_tab_shows_return_cells_in_return_units(monkeypatch, tmp_path):
