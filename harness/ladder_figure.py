@@ -51,6 +51,8 @@ def draw_cell(ax, ladder: Ladder, cell: Cell, ours: pd.DataFrame, published: pd.
     verdicts = []
     for check in cell.checks:
         ax.axvspan(check.lo / scale, check.hi / scale, color="tab:orange", alpha=0.12, lw=0)
+        w = ladder.widen_of(cell)  # the accepted band of the window's seed-mean
+        ax.hlines([check.min - w, check.max + w], check.lo / scale, check.hi / scale, colors="tab:orange", lw=1.2)
         text = verdict_text(verdict(ours_c, cell, check, ladder.widen_of(cell)), check, cell.steps, short=True)
         verdicts.append(f"{check.lo // 1000:,}k-{check.hi // 1000:,}k: {text}")
     ax.set_xlim(0, cell.steps / scale)

@@ -157,9 +157,22 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
     return written + [out / "reproduction.md", out / "reproduction.csv"]
 
 
+def _check_doc(ov: dict, suite: str | None) -> None:
+    """doc=: a reproduction suite's table block must exist in that file (one line otherwise)."""
+    if "doc" not in ov:
+        return
+    from harness.reproduction import replace_doc_table
+
+    if not is_cells_suite(suite):
+        raise ConfigError("doc= rewrites a reproduction suite's table: give a suite with cells")
+    if not Path(ov["doc"]).is_file():
+        raise ConfigError(f"doc= file not found: {ov['doc']}")
+    replace_doc_table(Path(ov["doc"]).read_text(), suite, "")
+
+
 def report_cli(overrides: list[str]) -> int:
     from harness.data import DataNotFoundError
-    from harness.results import RETURN_ENVS, load, load_published
+    from harness.results import COLUMNS, META_COLUMNS, RETURN_ENVS, load, load_published
 
     ov = parse(overrides)
     for key in ("results", "out", "suite", "doc"):
@@ -191,6 +204,15 @@ def report_cli(overrides: list[str]) -> int:
     df = load(results, warn=warnings.append)
     for w in warnings:
         print(f"harness report: warning: {w}", file=sys.stderr)
+    if suite and is_cells_suite(suite) and (df.empty or not (df["suite"] == suite).any()):
+        # a reproduction suite before its runs: its checks, every one "not started" (what will be judged, and how)
+        _check_doc(ov, suite)
+        out.mkdir(parents=True, exist_ok=True)
+        print(f"harness report: note: no results for suite {suite!r} under {results} yet: its checks are shown, "
+              "not started", file=sys.stderr)
+        for p in write_reproduction(suite, pd.DataFrame(columns=COLUMNS + META_COLUMNS), out, ov.get("doc")):
+            print(p)
+        return 0
     if df.empty:
         raise ConfigError(f"no results (evals.parquet) under {results}; run `harness run suite=...` first")
     everything = df  # Table 1's evidence reads every ladder suite's rows, whatever suite= selects
@@ -213,14 +235,7 @@ def report_cli(overrides: list[str]) -> int:
         raise ConfigError(f"step={step:,} is past every run (the furthest evaluated step is {furthest:,}): Table 1 "
                           "would be empty; give step=last, matched or a step the runs reached")
 
-    if "doc" in ov:  # checked before anything is written
-        from harness.reproduction import replace_doc_table
-
-        if not is_cells_suite(suite):
-            raise ConfigError("doc= rewrites a reproduction suite's table: give a suite with cells")
-        if not Path(ov["doc"]).is_file():
-            raise ConfigError(f"doc= file not found: {ov['doc']}")
-        replace_doc_table(Path(ov["doc"]).read_text(), suite, "")
+    _check_doc(ov, suite)  # before anything is written
 
     cells_df = df  # the reproduction verdicts read cells by their own names
     df = A.separate_suites(df)  # a method's runs from several suites are never pooled (MEDAL · smoke, ...)

@@ -266,6 +266,12 @@ def test_report_of_return_cells_speaks_returns(tmp_path, capsys):
     (every env of the suite publishes returns), not its success rate."""
     from harness.report import report_cli
 
+    # before any run: the suite's checks, every one "not started" (what will be judged, against what band)
+    (tmp_path / "results").mkdir()
+    assert report_cli(["suite=earl_returns", f"results={tmp_path / 'results'}", f"out={tmp_path / 'before'}"]) == 0
+    before = (tmp_path / "before" / "reproduction.md").read_text()
+    assert "| risc | minitaur | 2M | 1900k-2000k | -604 (-851 to -483) | - (-, -) | not started | not started |" in before
+    assert "no results for suite 'earl_returns'" in capsys.readouterr().err
     root = _write_kitchen_naive(tmp_path / "results")
     out = tmp_path / "out"
     assert report_cli(["suite=earl_returns", f"results={root}", f"out={out}", "published=none"]) == 0
