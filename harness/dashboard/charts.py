@@ -99,14 +99,18 @@ def cell_chart(ladder, cell, ours: pd.DataFrame, pub: pd.DataFrame | None, verdi
                        p.groupby("step", as_index=False)["value"].mean().assign(curve="published",
                                                                                line="published: mean", thick=True)]
     x = alt.X("step:Q", title="environment steps", axis=alt.Axis(format="~s"), scale=alt.Scale(domain=[0, cell.steps]))
-    windows = pd.DataFrame([{"lo": c.lo, "hi": c.hi} for c in cell.checks])
+    w = ladder.widen_of(cell)  # each window's accepted band of the seed-mean, drawn as two lines across the window
+    windows = pd.DataFrame([{"lo": c.lo, "hi": c.hi, "lower": c.min - w, "upper": c.max + w} for c in cell.checks])
     layers = [alt.Chart(windows).mark_rect(opacity=0.15, color="#ff7f0e").encode(x="lo:Q", x2="hi:Q")] if len(windows) else []
+    y_title = "deployed success" if cell.bounded else "deployed return"
+    layers += [alt.Chart(windows).mark_rule(color="#ff7f0e", strokeWidth=1.5, clip=True).encode(
+        x="lo:Q", x2="hi:Q", y=alt.Y(f"{edge}:Q", title=y_title)) for edge in ("lower", "upper")] if len(windows) else []
     if frames:
         d = pd.concat(frames, ignore_index=True)[["step", "value", "curve", "line", "thick"]]
         color = alt.Color("curve:N", scale=alt.Scale(domain=["ours", "published"], range=["#1f77b4", "#555555"]),
                           legend=alt.Legend(title=None, orient="bottom"))
-        y = (alt.Y("value:Q", title="deployed success", scale=alt.Scale(domain=[0, 1])) if cell.bounded
-             else alt.Y("value:Q", title="deployed return", scale=alt.Scale(zero=False)))
+        y = (alt.Y("value:Q", title=y_title, scale=alt.Scale(domain=[0, 1])) if cell.bounded
+             else alt.Y("value:Q", title=y_title, scale=alt.Scale(zero=False)))
         base = alt.Chart(d).encode(x=x, y=y, color=color, detail="line:N",
                                    tooltip=["line", "step", alt.Tooltip("value:Q", format=".2f" if cell.bounded else ".0f")])
         layers += [base.transform_filter(~alt.datum.thick).mark_line(strokeWidth=0.8, opacity=0.45),
