@@ -5,7 +5,8 @@ The card's segmenting is a DEFAULT (NOT FOUND in the sources): the stream is cut
 ``episode_steps`` = 300 steps (MEDAL's policy_switch_frequency), a pseudo-episode ending early on task success
 (stored terminal, like MEDAL's forward phase); at each cut the step is stored LAST, and a new segment starts from the
 current state with a freshly drawn task goal (tabletop: one of 4; door/peg: the single goal). The env is never reset
-by the algorithm. A hard reset starts a new segment with the reset observation's goal. Buffer <- forward demos.
+by the algorithm. A hard reset starts a new segment with the reset observation's goal. Buffer <- forward demos
+(``buffer_demos``).
 No bootstrapping across cuts ([MC]-style, ``bootstrap_on_truncation=False``).
 
 :class:`Naive` is also the single-controller base of :mod:`algorithms.oracle` (``episodic``: the env is reset at every
@@ -33,6 +34,8 @@ class NaiveConfig(SACAlgoConfig):
     episode_steps: int = setting(300, "pseudo-episode length; 0 = the env's eval horizon H_E", ge=0, le=10**9)
     end_on_success: bool = setting(True, "success ends the (pseudo-)episode, stored terminal")
     random_seed_actions: bool = setting(False, "uniform actions in [-1, 1] during the seed phase (oracle.py of [MC])")
+    buffer_demos: bool = setting(True, "the forward demos seed the replay buffer ([MC]); false: it starts empty "
+                                 "(TF-Agents reset_free.py without --offline_dir)")
 
 
 class Naive(Algorithm):
@@ -51,7 +54,8 @@ class Naive(Algorithm):
         self.buf = SegmentReplayBuffer(E, cfg.buffer_capacity, O, A, device, seeds, stream=Stream.REPLAY,
                                        name="replay buffer")
         # the demos end where success ends an episode: terminal if it does here, else a time-out (GAIL's 13.3)
-        self.buf.add_demo(**demo_arrays(demos.forward), ends_terminal=cfg.end_on_success)
+        if cfg.buffer_demos:
+            self.buf.add_demo(**demo_arrays(demos.forward), ends_terminal=cfg.end_on_success)
         self.horizon = cfg.episode_steps or task.eval_horizon
         self.rngs = member_rngs(seeds, stream=Stream.TASK_GOALS)  # task-goal draws at cuts, seed-phase actions
         self.goal = np.zeros((E, task.goal_dim), dtype=np.float32)

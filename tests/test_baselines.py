@@ -163,6 +163,14 @@ def test_oracle_asks_for_a_reset_every_eval_horizon_and_on_success(demos):
     assert _last(m.buf, "terminal") and _last(m.buf, "reward") == 1.0
 
 
+def test_oracle_starts_from_the_forward_demos_unless_buffer_demos_is_off(demos):
+    """[MC]'s oracle.py seeds its buffer with the forward demos; ``buffer_demos=False`` starts it empty (TF-Agents)."""
+    n = len(demos.forward.actions)
+    assert _make(Oracle, OracleConfig, demos).buf.size[0] >= n  # every demo transition (and each segment's end)
+    empty = _make(Oracle, OracleConfig, demos, seeds=(0, 1), buffer_demos=False)
+    assert empty.buf.size.tolist() == [0, 0]
+
+
 def test_oracle_logs_q_at_each_episode_start_beside_the_discounted_return(demos):
     """episode/q_start is the critic's min-Q at the first (obs, action) of an episode started after the seed phase;
     episode/return the episode's task reward, scaled by 10 and discounted by 0.99 per step from that first step."""

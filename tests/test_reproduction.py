@@ -19,7 +19,7 @@ from harness.synthetic import write_run
 
 from .conftest import requires_data
 
-SUITES = ("reproduction", "vaprl_ablation", "table1", "earl_returns")
+SUITES = ("reproduction", "vaprl_ablation", "table1", "earl_returns", "peg_oracle_diagnosis")
 
 
 def _curves(values: dict[int, list[float]], start: int = 10_000, every: int = 10_000) -> pd.DataFrame:
@@ -102,8 +102,9 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             assert (check.mean, check.min, check.max) == pytest.approx(
                 (per_seed.mean(), per_seed.min(), per_seed.max()), abs=0.0051 if cell.bounded else 0.051), (cell, check)
             n += 1
-    # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 22 cells (two of them: two windows)
-    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12, "earl_returns": 3}[suite]
+    # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 22 cells (two of them: two windows),
+    # the peg diagnosis 3 cells of two windows
+    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12, "earl_returns": 3, "peg_oracle_diagnosis": 6}[suite]
 
 
 @requires_data
