@@ -51,10 +51,12 @@ def table1_cell_rows(df: pd.DataFrame, cells: dict[tuple[str, str], str] | None 
     return df[have.isin(want)]
 
 
-def table1_evidence(df: pd.DataFrame, published: pd.DataFrame | None) -> pd.DataFrame:
+def table1_evidence(df: pd.DataFrame, published: pd.DataFrame | None,
+                    train: set[tuple[str, str, str, int]] | None = None) -> pd.DataFrame:
     """One row per Table-1 cell: algo, env, suite, budget, seeds, reached (slowest seed), ``evidence`` (verified /
     fails / running / no results / no cell), the final-window verdicts (``windows``), ``curve`` and
-    ``first_success`` (texts; absent without the published curves)."""
+    ``first_success`` (texts; absent without the published curves), and with ``train`` (the runs that hold training
+    diagnostics, :func:`harness.results.runs_holding`) ``train_tables``: how many of the cell's seeds have them."""
     cells: dict[tuple[str, str], dict] = {}
     for suite in TABLE1_SUITES:
         ladder = load_ladder(suite)
@@ -71,11 +73,14 @@ def table1_evidence(df: pd.DataFrame, published: pd.DataFrame | None) -> pd.Data
                 "windows": "; ".join(f"{w}: {v}" for w, v in zip(rows["window"], rows["verdict"])),
                 "curve": rows["curve"].iloc[0] if "curve" in rows else "",
                 "first_success": rows["first_success"].iloc[0] if "first_success" in rows else "",
+                "train_tables": None if train is None else sum((suite, cell.env, cell.name, s) in train
+                                                               for s in cell.seeds),
             }
     out = []
     for (algo, env) in PUBLISHED_TABLE1:
         c = cells.get((algo, env), {"suite": "", "budget": 0, "seeds": 0, "reached": 0, "evidence": "no cell",
-                                    "checks": [], "windows": "", "curve": "", "first_success": ""})
+                                    "checks": [], "windows": "", "curve": "", "first_success": "",
+                                    "train_tables": None})
         out.append({"algo": algo, "env": env, **c})
     return pd.DataFrame(out)
 
@@ -101,8 +106,11 @@ def evidence_markdown(e: pd.DataFrame) -> str:
             at = "" if r["reached"] >= r["budget"] else f", at {r['reached'] / 1e6:g}M"
             finals = "; ".join(f"{w} {_short(v)}" for w, v in r["checks"])
             curve = f"<br>curve {_short(r['curve'])}<br>first success {_short(r['first_success'])}" if r["curve"] else ""
-            cells.append(f"**{r['evidence']}** ({r['seeds']} seeds, {r['budget'] / 1e6:g}M{at})<br>{finals}{curve}")
+            train = "" if pd.isna(r.get("train_tables")) else f"{int(r['train_tables'])} of {r['seeds']} seeds"
+            cells.append(f"**{r['evidence']}** ({r['seeds']} seeds, {r['budget'] / 1e6:g}M{at})<br>{finals}{curve}"
+                         + (f"<br>training tables: {train}" if train else ""))
             details.append(f"- {algo_label(a)}, {env_label(env)} (suite {r['suite']}): final window {r['windows']}"
-                           + (f"; whole curve {r['curve']}; first success {r['first_success']}" if r["curve"] else ""))
+                           + (f"; whole curve {r['curve']}; first success {r['first_success']}" if r["curve"] else "")
+                           + (f"; training diagnostics (train.parquet) shipped for {train}" if train else ""))
         lines.append(f"| {algo_label(a)} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n" + ("\n" + "\n".join(details) + "\n" if details else "")

@@ -172,7 +172,7 @@ def _check_doc(ov: dict, suite: str | None) -> None:
 
 def report_cli(overrides: list[str]) -> int:
     from harness.data import DataNotFoundError
-    from harness.results import COLUMNS, META_COLUMNS, RETURN_ENVS, load, load_published
+    from harness.results import COLUMNS, META_COLUMNS, RETURN_ENVS, load, load_published, runs_holding
 
     ov = parse(overrides)
     for key in ("results", "out", "suite", "doc"):
@@ -269,7 +269,7 @@ def report_cli(overrides: list[str]) -> int:
         published_all = None  # the evidence then has the final-window verdicts only
     (out / "table1_evidence.md").write_text(
         "Which Table-1 cells the results verify (reproduction cells, docs/reproduction.md):\n\n"
-        + evidence_markdown(table1_evidence(everything, published_all)))
+        + evidence_markdown(table1_evidence(everything, published_all, runs_holding(results))))
     written.append(out / "table1_evidence.md")
 
     scores = A.final_scores(df, step=step)

@@ -183,6 +183,14 @@ def load(path: str | Path, warn=None, filename: str = EVALS_FILE) -> pd.DataFram
     return pa.concat_tables(tables, promote_options="permissive").to_pandas()
 
 
+def runs_holding(path: str | Path, filename: str = TRAIN_FILE) -> set[tuple[str, str, str, int]]:
+    """``(suite, env, algo, seed)`` of every run under ``path`` whose directory holds ``filename`` (by default the
+    training diagnostics: which shipped evaluations have the tables a diagnosis can check beside them)."""
+    root = Path(path)
+    runs = (parse_run_dir(f.parent, root) for f in root.rglob(filename))
+    return {(r["suite"], r["env"], r["algo"], r["seed"]) for r in runs if r and None not in r.values()}
+
+
 #: envs whose published "deployed" curves are the deployed policy's return, not a success rate
 #: (shared/earl/README.md: EARL's kitchen and dhand_lightbulb, RISC's minitaur): each env's ``EnvInfo.published_metric``,
 #: and dhand_lightbulb, which EARL published curves for but never released

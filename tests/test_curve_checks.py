@@ -139,8 +139,9 @@ def test_table1_suite_is_the_pre_registered_rule_on_the_published_data():
 
 @requires_data
 def test_table1_evidence_marks_verified_failing_and_missing_cells(tmp_path):
+    """Each cell's verdicts, and how many of its seeds have their training diagnostics shipped beside them."""
     from harness.evidence import evidence_markdown, table1_evidence
-    from harness.results import load, load_published
+    from harness.results import load, load_published, runs_holding
 
     status = {"state": "done", "step": 500_000, "total": 500_000, "steps_per_s": 20.0, "eta_s": 0.0, "last_success": 1}
     pub = load_published()
@@ -152,14 +153,20 @@ def test_table1_evidence_marks_verified_failing_and_missing_cells(tmp_path):
                   lambda step, c=c: {"deployed_success": float(c.get(step, 0.0))}, status)
         write_run(tmp_path, "table1", "sawyer_peg", "naive", s, range(0, 500_001, 10_000),
                   lambda step: {"deployed_success": 1.0 if step >= 100_000 else 0.0}, status)
-    e = table1_evidence(load(tmp_path), pub).set_index(["algo", "env"])
+    (tmp_path / "table1/tabletop_manipulation/oracle/seed=0/train.parquet").write_bytes(b"")  # one seed's diagnostics
+    train = runs_holding(tmp_path)
+    assert train == {("table1", "tabletop_manipulation", "oracle", 0)}
+    e = table1_evidence(load(tmp_path), pub, train).set_index(["algo", "env"])
     assert len(e) == 18
     assert e.loc[("oracle", "tabletop_manipulation"), "evidence"] == "verified"
+    assert e.loc[("oracle", "tabletop_manipulation"), "train_tables"] == 1
+    assert e.loc[("naive", "sawyer_peg"), "train_tables"] == 0
     assert e.loc[("naive", "sawyer_peg"), "evidence"] == "fails"
     assert "too strong" in e.loc[("naive", "sawyer_peg"), "windows"]
     assert e.loc[("medal", "sawyer_peg"), "evidence"] == "no results"
     md = evidence_markdown(e.reset_index())
     assert "**verified** (2 seeds, 0.5M)" in md and "no results (table1, 8M)" in md
+    assert "training tables: 1 of 2 seeds" in md and "training tables: 0 of 2 seeds" in md
 
 
 def test_gaps_are_not_evidence_and_no_published_curves_is_said():
@@ -189,7 +196,8 @@ def test_evidence_survives_a_check_decided_before_its_window_is_full(tmp_path):
     e = table1_evidence(load(tmp_path), load_published()).set_index(["algo", "env"])
     assert e.loc[("naive", "sawyer_peg"), "evidence"] == "fails"
     assert "whatever the rest scores" in e.loc[("naive", "sawyer_peg"), "windows"]
-    assert "400k-500k running" in evidence_markdown(e.reset_index())
+    md = evidence_markdown(e.reset_index())
+    assert "400k-500k running" in md and "training tables" not in md  # not asked: not said
 
 
 def returns_five(levels=(-900.0, -700.0, -2200.0, -500.0, 100.0), start=-2700.0, at=300_000) -> pd.DataFrame:

@@ -168,9 +168,10 @@ def table1_for(root, sig, sel: Sel, step, last_k, published) -> pd.DataFrame:
 @st.cache_data(show_spinner="Checking the reproduction cells…", max_entries=4)
 def evidence_for(root, sig) -> pd.DataFrame:
     from harness.evidence import table1_evidence
+    from harness.results import runs_holding
 
     df, _ = load_results(root, sig)
-    return table1_evidence(df, load_published_curves()[0])
+    return table1_evidence(df, load_published_curves()[0], runs_holding(root))
 
 
 @st.cache_data(show_spinner=False, max_entries=32)

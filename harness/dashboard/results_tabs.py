@@ -151,4 +151,6 @@ def tab_table1(root, sig, sel: Sel) -> None:
     st.caption("Per Table-1 cell, the reproduction cell that checks it (suites/reproduction.yaml, suites/table1.yaml) "
                "in this results directory, whatever the sidebar selects: its seeds and budget, the final-window "
                "verdicts, the whole-curve check (every 100k window) and the first-success check. verified: every "
-               "check passes; fails: one fails; a calibration window is not evidence. docs/reproduction.md.")
+               "check passes; fails: one fails; a calibration window is not evidence. Training tables: how many "
+               "of the cell's seeds have their training diagnostics (train.parquet) beside their evaluations, the "
+               "data a diagnosis can check. docs/reproduction.md.")
