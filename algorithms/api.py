@@ -24,6 +24,7 @@ import math
 import re
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field, fields
+from decimal import Decimal
 from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
@@ -175,15 +176,26 @@ class AlgoConfig:
         return [(f.name, getattr(cls(), f.name), declaration(cls, f.name).get("help", "")) for f in fields(cls)]
 
 
+#: the step counts' shorthand the docs and the plans use: ``500k``, ``1.5M``, ``8M``
+_SUFFIXES = {"k": 10**3, "m": 10**6, "b": 10**9, "g": 10**9}
+
+
 def parse_int(name: str, value: Any) -> int:
-    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5`` and ``300_000`` (digits are read exactly, however
-    many; a value too long to show is cut in the message)."""
+    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5``, ``300_000`` and ``300k`` / ``1.5M`` (k = 10^3,
+    M = 10^6, B or G = 10^9, either case; read in decimal, so 1.1M is 1,100,000 exactly). Digits are read exactly,
+    however many; a value too long to show is cut in the message."""
     text = str(value).strip().replace("_", "")
     shown = repr(value) if len(str(value)) <= 40 else f"{str(value)[:20]!r}... ({len(str(value))} characters)"
     if re.fullmatch(r"[+-]?[0-9]+", text):  # ASCII digits only (str.isdigit takes other scripts' digits too)
         if len(text) > 400:  # beyond any bound a setting declares (and Python's int() digit limit)
             raise ValueError(f"{name} is too large: {shown}")
         return int(text)
+    short = re.fullmatch(r"([+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))([kKmMbBgG])", text)
+    if short and len(text) <= 40:
+        n = Decimal(short[1]) * _SUFFIXES[short[2].lower()]
+        if n != n.to_integral_value():
+            raise ValueError(f"{name} must be an integer, got {shown}")
+        return int(n)
     try:
         x = float(text)
     except ValueError:

@@ -22,6 +22,13 @@ def algorithm_names() -> tuple[str, ...]:
     return tuple(registry.ALGORITHMS) if registry is not None else tuple(algorithm_summaries())
 
 
+def algorithm_name(word: str) -> str:
+    """The registry name of the algorithm ``word`` names in any case (``MEDAL`` -> ``medal``); any other word
+    unchanged (the check that follows names it as unknown)."""
+    by_lower = {n.lower(): n for n in algorithm_names()}
+    return word if word in by_lower.values() else by_lower.get(word.lower(), word)
+
+
 def algorithm_summaries() -> dict[str, str]:
     """Registry name -> the first line of its class's docstring, in the registry's order."""
     return dict(_summaries())

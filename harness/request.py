@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from algorithms.update_modes import UPDATES
-from harness.envs import ENVS
+from harness.catalogue import algorithm_name
+from harness.envs import ENVS, env_name
 from harness.words import ConfigError, boolean, names, parse_words
 from harness.words import integer as _int
 
@@ -48,12 +49,13 @@ class Key:
 #: every key=value word of ``harness run``; ``harness run --help`` prints this table, planning reads the defaults
 RUN_KEYS: dict[str, Key] = {
     "suite": Key("a suite in suites/ or a path to a suite YAML (its name names the results directory)"),
-    "algo": Key("algorithm(s), comma-separated (ad hoc; with a suite of cells: selects cells)"),
+    "algo": Key("algorithm(s), comma-separated, any case (ad hoc; with a suite of cells: selects cells)"),
     "algos": Key("same as algo"),
-    "env": Key(f"env(s), comma-separated: {', '.join(ENVS)}"),
+    "env": Key(f"env(s), comma-separated: {', '.join(ENVS)} (any case, or the gymnasium id: earl/SawyerDoor-v0)"),
     "envs": Key("same as env"),
     "seeds": Key("a count (seeds 0..n-1) or a comma list of distinct seeds (one seed: 7, or [7])", 1),
-    "steps": Key("training steps per run", None, 1, MAX_STEPS,
+    "steps": Key("training steps per run (300000, 3e5, 300k and 1.5M all work, here and in every step count)", None,
+                 1, MAX_STEPS,
                  shown="/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env"),
     "eval_every": Key("steps between deployed-policy evaluations", 10_000, 1, MAX_STEPS),
     "eval_episodes": Key("episodes per evaluation", 10, 1, MAX_EPISODES),
@@ -200,8 +202,9 @@ class RunRequest:
             if key in ov and not str(ov[key]).strip():
                 raise ConfigError(f"{key}= is empty: give a value (or leave {key} out for its default)")
         return cls(
-            suite=ov.get("suite"), algos=tuple(names("algo", ov.get("algos") or ov.get("algo") or [])),
-            envs=tuple(names("env", ov.get("envs") or ov.get("env") or [])),
+            suite=ov.get("suite"), algos=tuple(names("algo", [algorithm_name(a) for a in names(
+                "algo", ov.get("algos") or ov.get("algo") or [])])),
+            envs=tuple(names("env", [env_name(e) for e in names("env", ov.get("envs") or ov.get("env") or [])])),
             seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps"),
             eval_every=opt("eval_every"), eval_episodes=opt("eval_episodes"), checkpoint_every=opt("checkpoint_every"),
             keep_every=opt("keep_every"), log_every=opt("log_every"), members=opt("members"), workers=opt("workers"),

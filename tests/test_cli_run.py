@@ -277,10 +277,29 @@ def test_seed_lists():
     assert parse_seeds("7,") == parse_seeds("[7]") == [7]
 
 
+def test_names_and_step_counts_as_people_write_them():
+    """What the docs and plans write works as a word: an algorithm or env in any case, an env's gymnasium id, and step
+    counts in the shorthand (300k, 1.5M, 3e5), read exactly in decimal; a count that is no integer stays an error."""
+    from algorithms.api import parse_int
+    from harness.request import RunRequest
+
+    req = RunRequest.from_words(["algo=MEDAL,Oracle", "env=earl/SawyerDoor-v0,Sawyer_Peg", "steps=1.5M",
+                                 "eval_every=10k", "checkpoint_every=50_000"])
+    assert (req.algos, req.envs) == (("medal", "oracle"), ("sawyer_door", "sawyer_peg"))
+    assert (req.steps, req.eval_every, req.checkpoint_every) == (1_500_000, 10_000, 50_000)
+    assert [parse_int("n", v) for v in ("500k", "8m", "1.1M", "2.5B", ".5M", "3e5")] == \
+        [500_000, 8_000_000, 1_100_000, 2_500_000_000, 500_000, 300_000]
+    for bad in ("1.2345k", "M", "1e6k", "1,5M"):
+        with pytest.raises(ValueError, match="must be an integer"):
+            parse_int("n", bad)
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [
         (["algo=medal", "env=sawyer_door", "seeds=[]"], "seeds is an empty list"),
+        (["algo=medal,MEDAL", "env=sawyer_door"], "algo lists medal more than once"),
+        (["algo=medal", "env=sawyer_door", "steps=1.25k5"], "steps must be an integer"),
         (["algo=medal", "env=sawyer_door", "seeds=2,2"], "seeds must be distinct"),
         (["algo=medal", "env=sawyer_door", "seeds=[x]"], "seeds must be an integer"),
         (["colour=red", "algo=medal", "env=sawyer_door"], "unknown key 'colour'"),

@@ -18,8 +18,9 @@ from algorithms.api import DemoSet
 from algorithms.core.sac import set_update_mode
 from algorithms.update_modes import UPDATES
 from harness.backends import use_allocator
+from harness.catalogue import algorithm_name
 from harness.command_keys import BENCH
-from harness.envs import check_env, get_spec, load_env_demos
+from harness.envs import check_env, env_name, get_spec, load_env_demos
 from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
 from harness.runnable import check_runs_on
@@ -79,7 +80,7 @@ def training_words(what: str, ov: dict[str, str]) -> tuple[str, str, str]:
     unknown = set(ov) - allowed
     if unknown:
         raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
-    algo, env = ov.get("algo", "medal"), ov.get("env", "sawyer_door")
+    algo, env = algorithm_name(ov.get("algo", "medal")), env_name(ov.get("env", "sawyer_door"))
     if algo not in ALGORITHMS:
         raise UsageError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
     check_env(env)  # unknown, never released or its simulator not installed: one line

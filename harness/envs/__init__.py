@@ -56,6 +56,14 @@ class EnvUnavailableError(UnknownEnvError):
     """The env is known but cannot be built here (never released, or an optional dependency is missing)."""
 
 
+def env_name(word: str) -> str:
+    """The registry name of the env ``word`` names: its name in any case, or its gymnasium id (``earl/SawyerDoor-v0``);
+    any other word unchanged (the check that follows names it as unknown)."""
+    known = {**{n.lower(): n for n in (*ENVS, *UNAVAILABLE_ENVS)},
+             **{info.spec.gym_id.lower(): n for n, info in ENVS.items()}}
+    return known.get(word.lower(), word)
+
+
 def env_info(name: str) -> EnvInfo:
     """The registered :class:`EnvInfo` of ``name``; :class:`UnknownEnvError` (one line) when there is none."""
     if name in UNAVAILABLE_ENVS:

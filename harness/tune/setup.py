@@ -95,6 +95,8 @@ def trial_request(base: RunRequest, algo: str, params: dict[str, Any], results: 
 
 def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
+    from harness.catalogue import algorithm_name
+    from harness.envs import env_name
     from harness.planning import build_plan
     from harness.registry import ALGORITHMS
     from harness.request import check_device, parse_seeds
@@ -104,10 +106,10 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     def optional(key: str) -> int | None:
         return RUN_KEYS[key].parse(key, ov[key]) if key in ov else None
 
-    algo = ov.get("algo", "medal")
+    algo = algorithm_name(ov.get("algo", "medal"))
     if algo not in ALGORITHMS:
         raise ConfigError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
-    env = ov.get("env")
+    env = env_name(ov["env"]) if ov.get("env") else None
     if not env or "," in env:
         raise ConfigError("give one env=NAME to tune on")
     study = ov.get("study", f"{algo}_{env}")
