@@ -202,7 +202,15 @@ class Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = Parser(prog="harness", description="EARL benchmark harness for reset-free RL")
+    p = Parser(prog="harness", description="EARL benchmark harness for reset-free RL",
+               formatter_class=argparse.RawDescriptionHelpFormatter, epilog=(
+                   "first steps:\n"
+                   "  harness list                                    algorithms, envs, suites\n"
+                   "  harness run suite=smoke                         every algorithm x env, tiny budgets (minutes)\n"
+                   "  harness run algo=medal env=sawyer_door steps=50k --dry-run   the plan and its time\n"
+                   "  harness report results=results                  curves and Table 1 from the results\n"
+                   "  streamlit run app.py                            the dashboard\n"
+                   "  harness COMMAND --help                          a command's keys"))
     p.add_argument("--data-dir", help="EARL data directory (default: HARNESS_DATA_DIR, cache, ../shared/earl)")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=Parser)
     sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
@@ -268,6 +276,10 @@ def main(argv: list[str] | None = None) -> int:
     from harness.envs import UnknownEnvError
 
     parser = build_parser()
+    words = sys.argv[1:] if argv is None else argv
+    if not words or words[0] == "help":  # a first look (`harness`, `harness help`): the commands, not an error
+        parser.print_help()
+        return 0
     # flags may stand anywhere among the key=value words: argparse stops filling ``overrides`` at the first flag and
     # hands back the words after it, which are key=value words too
     args, extra = parser.parse_known_args(argv)

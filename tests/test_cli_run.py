@@ -277,6 +277,12 @@ def test_seed_lists():
     assert parse_seeds("7,") == parse_seeds("[7]") == [7]
 
 
+def test_bare_harness_shows_the_commands_and_first_steps(capsys):
+    assert main([]) == 0 and main(["help"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("first steps:") == 2 and "harness run suite=smoke" in out and "{list,run," in out
+
+
 def test_names_and_step_counts_as_people_write_them():
     """What the docs and plans write works as a word: an algorithm or env in any case, an env's gymnasium id, and step
     counts in the shorthand (300k, 1.5M, 3e5), read exactly in decimal; a count that is no integer stays an error."""
