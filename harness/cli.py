@@ -152,7 +152,29 @@ def cmd_ship(args) -> int:
     print(f"{len(written)} files of {runs} run(s) copied to {Path(ov.get('to', 'results')) / ov['suite']}")
     for run in kept:
         print(f"kept the shipped table of {run}; force=true replaces it")
+    dest = Path(ov.get("to", "results")) / ov["suite"]
+    ignored = git_ignored(dest) if written else None
+    if ignored is not None:
+        print(f"harness: note: {dest} is ignored by git, so the shipped tables will not be committed; un-ignore it "
+              f"(a line '!/{ignored}/' in .gitignore) to ship them with the code", file=sys.stderr)
     return 0
+
+
+def git_ignored(path: Path) -> str | None:
+    """``path`` relative to the root of the git work tree it lies in, if that work tree ignores it; None when it does
+    not, outside a work tree, or without git."""
+    import subprocess
+
+    def git(*words: str) -> subprocess.CompletedProcess:
+        return subprocess.run(["git", *words], cwd=path, capture_output=True, text=True, timeout=10)
+
+    try:
+        if git("check-ignore", "-q", ".").returncode != 0:
+            return None
+        root = git("rev-parse", "--show-toplevel").stdout.strip()
+        return path.resolve().relative_to(Path(root).resolve()).as_posix()
+    except (OSError, ValueError, subprocess.SubprocessError):
+        return None
 
 
 def cmd_tune(args) -> int:

@@ -4,6 +4,8 @@ its runs (and variants) exactly, and the report and the dashboard tab show verdi
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -385,6 +387,23 @@ def test_ship_copies_tables_not_checkpoints_and_report_rewrites_the_doc_table(tm
     bad.write_text("no table here\n")
     assert main(["report", "suite=reproduction", f"results={runs}", f"out={tmp_path / 'out2'}", f"doc={bad}"]) == 2
     assert not (tmp_path / "out2").exists() and bad.read_text() == "no table here\n"
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="needs git")
+def test_ship_says_when_git_ignores_where_the_tables_went(tmp_path, capsys):
+    """Shipped tables are meant to be committed: into a folder the work tree ignores, ship says so and how to fix it."""
+    from harness.cli import main
+
+    runs = write_ladder_results(tmp_path / "runs")
+    repo = tmp_path / "repo"
+    subprocess.run(["git", "init", "-q", str(repo)], check=True)
+    (repo / ".gitignore").write_text("/results/*\n!/results/reproduction/\n")
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo / 'results'}"]) == 0
+    assert "ignored by git" not in capsys.readouterr().err  # un-ignored: nothing to say
+    (repo / ".gitignore").write_text("/results/*\n")
+    assert main(["ship", "suite=reproduction", f"results={runs}", f"to={repo / 'results'}", "force=true"]) == 0
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "ignored by git" in err and "'!/results/reproduction/'" in err
 
 
 def test_ship_keeps_a_shipped_table_that_got_further_than_a_restarted_run(tmp_path, capsys):
