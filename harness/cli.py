@@ -177,6 +177,20 @@ def git_ignored(path: Path) -> str | None:
         return None
 
 
+def cmd_status(args) -> int:
+    from harness.run_status import run_status, status_text
+
+    ov = parse_overrides(args.overrides, set(keys.STATUS))
+    results = Path(ov.get("results", "results"))
+    if not results.is_dir():
+        raise UsageError(f"results directory not found: {results}; pass results=DIR (where `harness run` wrote)")
+    df = run_status(results)
+    if "suite" in ov:
+        df = df[df["suite"] == ov["suite"]]
+    print(status_text(df))
+    return 0
+
+
 def cmd_tune(args) -> int:
     from harness.tune.command import tune_cli
 
@@ -230,6 +244,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "  harness list                                    algorithms, envs, suites\n"
                    "  harness run suite=smoke                         every algorithm x env, tiny budgets (minutes)\n"
                    "  harness run algo=medal env=sawyer_door steps=50k --dry-run   the plan and its time\n"
+                   "  harness status results=results                  every run: step, steps/s, ETA\n"
                    "  harness report results=results                  curves and Table 1 from the results\n"
                    "  streamlit run app.py                            the dashboard\n"
                    "  harness COMMAND --help                          a command's keys"))
@@ -270,6 +285,11 @@ def build_parser() -> argparse.ArgumentParser:
                         epilog=keys_help(keys.SHIP, False), formatter_class=raw)
     sh.add_argument("overrides", nargs="*")
     sh.set_defaults(fn=cmd_ship)
+
+    stat = sub.add_parser("status", help="every run under a results directory: state, step, steps/s, ETA, last "
+                                         "success", epilog=keys_help(keys.STATUS, False), formatter_class=raw)
+    stat.add_argument("overrides", nargs="*")
+    stat.set_defaults(fn=cmd_status)
 
     d = sub.add_parser("data", help="fetch or generate demonstrations")
     dsub = d.add_subparsers(dest="data_cmd", required=True)

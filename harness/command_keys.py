@@ -31,6 +31,10 @@ SHIP: KeyHelp = {
     "to": ("results", "the results directory they are copied to"),
     "force": ("false", "replace a shipped table even where the run in results= got less far"),
 }
+STATUS: KeyHelp = {
+    "results": ("results", "the results directory whose runs are shown"),
+    "suite": ("all", "show only this suite's runs"),
+}
 SCRIPTED: KeyHelp = {
     "envs": ("every env with scripted experts", "env names (comma list; or env=)"),
     "out": ("the project cache", "directory the demos/<env>/<direction>.npz files go to"),

@@ -93,3 +93,25 @@ def format_duration(s: float) -> str:
         return "?"
     s = int(max(s, 0))
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+def status_text(df: pd.DataFrame) -> str:
+    """The runs of :func:`run_status` as a fixed-width table (step of total, steps/s, ETA, last deployed success, the
+    age of the status) and a count per state; failed runs add their error line."""
+    if df.empty:
+        return "no runs"
+    rows = [("suite", "env", "algo", "seed", "state", "step", "of", "%", "steps/s", "ETA", "success", "updated")]
+    for r in df.itertuples():
+        def num(x: float, fmt: str) -> str:
+            return "-" if math.isnan(x) else format(x, fmt)
+        rows.append((str(r.suite or "-"), str(r.env or "-"), str(r.algo or "-"), "-" if pd.isna(r.seed) else str(r.seed),
+                     r.state, num(r.step, ",.0f"), num(r.total, ",.0f"), num(100 * r.progress, ".0f"),
+                     num(r.steps_per_s, ",.0f") if r.state in ("running", "resumed") and r.steps_per_s > 0 else "-",
+                     format_duration(r.eta_s) if r.state in ("running", "resumed") else "-", num(r.last_success, ".2f"),
+                     "-" if math.isnan(r.age_s) else f"{format_duration(r.age_s)} ago"))
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    right = {3, 5, 6, 7, 8, 10}
+    lines = ["  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))).rstrip()
+             for row in rows]
+    lines += [f"  {r.suite}/{r.env}/{r.algo} seed {r.seed}: {r.error}" for r in df.itertuples() if r.error]
+    return "\n".join(lines) + f"\n{len(df)} run(s): " + ", ".join(f"{n} {s}" for s, n in status_counts(df).items())

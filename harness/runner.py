@@ -23,6 +23,7 @@ from harness.envs import load_env_demos
 from harness.plan import Plan, RunSpec
 from harness.planning import finished, plan_words, steps_done
 from harness.provenance import run_record
+from harness.run_status import format_duration
 
 
 def run_group(spec: RunSpec, command: str, queue=None, threads: int | None = None, should_stop=None) -> str | None:
@@ -100,20 +101,13 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     train(spec, algo, lambda p: say(progress_line(spec.label, p)), should_stop)
 
 
-def _fmt_time(s: float) -> str:
-    if not math.isfinite(s):
-        return "?"
-    s = int(s)
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
-
-
 def progress_line(label: str, p) -> str:
     if p.resumed:
         return f"[{label}] resuming from the checkpoint at step {p.step:,} of {p.total:,}"
     succ = ",".join("-" if not np.isfinite(x) else f"{x:.2f}" for x in p.success)
     pct = 100.0 * p.step / max(p.total, 1)
     return (f"[{label}] {p.step:,}/{p.total:,} ({pct:.0f}%)  {p.steps_per_s:,.0f} steps/s  "
-            f"ETA {_fmt_time(p.eta_s)}  success {succ}")
+            f"ETA {format_duration(p.eta_s)}  success {succ}")
 
 
 def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
@@ -159,7 +153,7 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     est = calibration.estimate(work, plan.workers)
     when = calibration.when_measured([plan.groups[i] for i in todo], threads)
     measured = all(evals[i] is not None for i in todo)
-    print(f"estimated time: {_fmt_time(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
+    print(f"estimated time: {format_duration(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
           f"on this machine{when} (evaluations " + ("included, as measured" if measured else
                                                      f"add ~{calibration.EVAL_SHARE:.0%} where not measured")
           + "; other load on the machine slows it; calibrate=refresh measures again)")
@@ -182,9 +176,9 @@ def ways_forward(plan: Plan, work: list[tuple[int, float]], est: float) -> str:
         seeds.setdefault((g.env, g.algo), set()).update(g.seeds)
     steps = {(g.env, g.algo): g.steps for g in plan.groups}
     share = sum(min(2, len(s)) * steps[c] for c, s in seeds.items()) / sum(len(s) * steps[c] for c, s in seeds.items())
-    few = f"seeds=2 (about {_fmt_time(est * share)})" if share < 1 else ""
+    few = f"seeds=2 (about {format_duration(est * share)})" if share < 1 else ""
     return (f"that is long for this machine; ways forward: a Ray cluster of {CLUSTER_NODES} machines like it (backend=ray "
-            f"ray_address=auto: about {_fmt_time(cluster)}); a GPU node (device=cuda trains a cell's seeds as members "
+            f"ray_address=auto: about {format_duration(cluster)}); a GPU node (device=cuda trains a cell's seeds as members "
             "of one process, docs/performance.md)" + (f"; {few}" if few else "") + "; the tables shipped in results/ "
             "already hold what this project has run (streamlit run app.py, harness report)")
 
@@ -199,6 +193,6 @@ def run_cli(words: list[str], dry_run: bool = False) -> int:
     from harness.backends import run_plan
 
     errors = run_plan(plan, command, run_group)
-    print(f"done: {len(plan.groups) - len(errors)}/{len(plan.groups)} group(s) in {_fmt_time(time.time() - t0)}; "
+    print(f"done: {len(plan.groups) - len(errors)}/{len(plan.groups)} group(s) in {format_duration(time.time() - t0)}; "
           f"results in {plan.groups[0].results}")
     return 1 if errors else 0

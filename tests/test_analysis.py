@@ -231,6 +231,28 @@ def test_run_status(fixture_dir):
     assert format_duration(3725) == "1h02m" and format_duration(math.inf) == "?"
 
 
+def test_harness_status_prints_every_run_with_its_progress(fixture_dir, tmp_path, capsys):
+    """`harness status`: one line per run (state, step of total, speed and ETA while running, last success), the
+    error line of a failed run, and a count per state; suite= filters; a missing directory is one error line."""
+    from harness.cli import main
+
+    assert main(["status", f"results={fixture_dir}"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].split() == ["suite", "env", "algo", "seed", "state", "step", "of", "%", "steps/s", "ETA", "success",
+                              "updated"]
+    st = run_status(fixture_dir)
+    assert len([line for line in out[1:] if not line.startswith("  ")]) == len(st) + 1
+    assert out[-1] == f"{len(st)} run(s): 1 running, 1 resumed, 1 stale, 15 done, 1 failed, 1 unknown"
+    assert any(F.FAILED_ERROR in line for line in out if line.startswith("  "))
+    running = next(r for r in st.itertuples() if r.state == "running")
+    line = next(x for x in out if x.split()[4:5] == ["running"])
+    assert f"{running.step:,.0f}" in line and format_duration(running.eta_s) in line
+    assert main(["status", f"results={fixture_dir}", "suite=nope"]) == 0 and capsys.readouterr().out.strip() == \
+        "no runs"
+    assert main(["status", f"results={tmp_path / 'none'}"]) == 2
+    assert capsys.readouterr().err.strip().startswith("harness: error: results directory not found")
+
+
 def test_parse_run_dir_inverts_run_dir(tmp_path):
     for suite, env, algo, seed in [("main", "sawyer_door", "medal", 0), ("tuning/s/trial=3/tune_s", "e", "a", 12)]:
         d = run_dir(tmp_path, suite, env, algo, seed)

@@ -98,7 +98,7 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     from harness import calibration
     from harness.data import state_dir
     from harness.planning import plan_words
-    from harness.runner import _fmt_time
+    from harness.run_status import format_duration
 
     words = ["run", "suite=earl_sparse", f"results={tmp_path}"]
     assert main([*words, "--dry-run", "calibrate=false"]) == 0
@@ -116,7 +116,7 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     assert "not measured yet" not in out and out.count("100.0 steps/s per seed") == len(plan.groups)
     # steps per member of each group, none done; an entry without an evaluation cost adds the usual share
     work = [(g.steps, 100.0 / (1 + calibration.EVAL_SHARE)) for g in plan.groups]
-    assert f"estimated time: {_fmt_time(calibration.estimate(work, plan.workers))} on" in out
+    assert f"estimated time: {format_duration(calibration.estimate(work, plan.workers))} on" in out
     assert "(evaluations add ~3% where not measured;" in out
     assert not list(tmp_path.iterdir())
 
