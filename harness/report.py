@@ -36,7 +36,7 @@ from harness.command_keys import REPORT as REPORT_KEYS
 from harness.evidence import evidence_markdown, table1_evidence
 from harness.labels import algo_label, env_label, method_colors, order_algos, order_envs
 from harness.stats import aggregate_scores
-from harness.suites import ConfigError, load_suite
+from harness.suites import ConfigError, list_suites, load_suite
 from harness.tables import table1, table1_csv, table1_latex, table1_markdown
 from harness.words import integer as parse_int
 from harness.words import parse_words
@@ -182,6 +182,8 @@ def report_cli(overrides: list[str]) -> int:
     if not results.exists():
         raise ConfigError(f"results directory not found: {results}; run `harness run suite=...` first or pass results=DIR")
     suite = ov.get("suite")
+    if suite:  # a suite of suites/ in any case
+        suite = next((s for s in list_suites() if s.lower() == suite.lower()), suite)
     out = Path(ov["out"]) if "out" in ov else results / "report" / (suite or "all")
     metric = ov.get("metric", "deployed_success")  # deployed_return where every env selected publishes returns (below)
     if metric not in CURVE_METRICS:

@@ -88,12 +88,15 @@ def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
     be a plain identifier, since it names the directory under results."""
     p = Path(name_or_path)
     if p.suffix in (".yaml", ".yml") or p.exists():
+        if not p.is_file() and p.parts[:-1] in ((), ("suites",)) and (SUITES_DIR / p.name).is_file():
+            p = SUITES_DIR / p.name  # `table1.yaml` or `suites/table1.yaml` from another folder: the bundled file
         if not p.is_file():
             raise ConfigError(f"suite file not found: {p}")
         path, name = p, check_name("suite", p.stem)
     else:
         check_name("suite", name_or_path)
-        path, name = SUITES_DIR / f"{name_or_path}.yaml", name_or_path
+        name = next((s for s in list_suites() if s.lower() == name_or_path.lower()), name_or_path)  # any case
+        path = SUITES_DIR / f"{name}.yaml"
         if not path.exists():
             raise ConfigError(f"unknown suite {name_or_path!r}; known suites: {', '.join(list_suites())}")
     d = _read_yaml(path)

@@ -284,11 +284,15 @@ def test_bare_harness_shows_the_commands_and_first_steps(capsys):
 
 
 def test_names_and_step_counts_as_people_write_them():
-    """What the docs and plans write works as a word: an algorithm or env in any case, an env's gymnasium id, and step
-    counts in the shorthand (300k, 1.5M, 3e5), read exactly in decimal; a count that is no integer stays an error."""
+    """What the docs and plans write works as a word: a suite, algorithm or env in any case, a suite as its file name
+    (from any folder), an env's gymnasium id, and step counts in the shorthand (300k, 1.5M, 3e5), read exactly in
+    decimal; a count that is no integer stays an error."""
     from algorithms.api import parse_int
     from harness.request import RunRequest
 
+    from harness.suites import load_suite
+
+    assert load_suite("Table1")[0] == load_suite("table1.yaml")[0] == load_suite("suites/table1.yaml")[0] == "table1"
     req = RunRequest.from_words(["algo=MEDAL,Oracle", "env=earl/SawyerDoor-v0,Sawyer_Peg", "steps=1.5M",
                                  "eval_every=10k", "checkpoint_every=50_000"])
     assert (req.algos, req.envs) == (("medal", "oracle"), ("sawyer_door", "sawyer_peg"))
