@@ -289,7 +289,6 @@ def test_names_and_step_counts_as_people_write_them():
     decimal; a count that is no integer stays an error."""
     from algorithms.api import parse_int
     from harness.request import RunRequest
-
     from harness.suites import load_suite
 
     assert load_suite("Table1")[0] == load_suite("table1.yaml")[0] == load_suite("suites/table1.yaml")[0] == "table1"
