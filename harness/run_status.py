@@ -100,10 +100,11 @@ def status_text(df: pd.DataFrame) -> str:
     age of the status) and a count per state; failed runs add their error line."""
     if df.empty:
         return "no runs"
+    def num(x: float, fmt: str) -> str:
+        return "-" if math.isnan(x) else format(x, fmt)
+
     rows = [("suite", "env", "algo", "seed", "state", "step", "of", "%", "steps/s", "ETA", "success", "updated")]
     for r in df.itertuples():
-        def num(x: float, fmt: str) -> str:
-            return "-" if math.isnan(x) else format(x, fmt)
         rows.append((str(r.suite or "-"), str(r.env or "-"), str(r.algo or "-"), "-" if pd.isna(r.seed) else str(r.seed),
                      r.state, num(r.step, ",.0f"), num(r.total, ",.0f"), num(100 * r.progress, ".0f"),
                      num(r.steps_per_s, ",.0f") if r.state in ("running", "resumed") and r.steps_per_s > 0 else "-",
