@@ -348,11 +348,9 @@ class TrainingRun:
                 t_mark, s_mark = time.perf_counter(), self.step
                 if should_stop and should_stop():
                     return self.results
-            elif self.step % 1000 == 0 and self.on_progress and time.perf_counter() - t_last_report > 10:
-                t_last_report = time.perf_counter()
-                rate = (self.step - s_mark) / max(t_last_report - t_mark, 1e-9)
-                self.on_progress(Progress(self.step, spec.steps, rate, (spec.steps - self.step) / max(rate, 1e-9),
-                                          list(self.last_success)))
+            elif self.step % 1000 == 0 and time.perf_counter() - t_last_report > 10:
+                t_last_report = time.perf_counter()  # status.json too: `harness status` and the dashboard stay live
+                self.report((self.step - s_mark) / max(t_last_report - t_mark, 1e-9), self.status)
         for d, succ in zip(self.dirs, self.last_success):
             write_status(d, state="done", step=self.step, total=spec.steps, steps_per_s=rate, eta_s=0.0,
                          last_success=succ)

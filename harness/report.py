@@ -117,7 +117,28 @@ def is_cells_suite(suite: str | None) -> bool:
     return "cells" in load_suite(suite)[1]
 
 
-def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None = None) -> list[Path]:
+def _published() -> pd.DataFrame | None:
+    """The published curves, read once per report; where they cannot be read, one warning and ours alone."""
+    from harness.data import DataNotFoundError
+    from harness.results import load_published
+
+    try:
+        return load_published()
+    except (DataNotFoundError, OSError) as e:
+        print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
+        return None
+
+
+def _save_figure(fig, stem: Path, png_dpi: int) -> list[Path]:
+    """``stem``.png and ``stem``.pdf."""
+    paths = [stem.with_suffix(".png"), stem.with_suffix(".pdf")]
+    fig.savefig(paths[0], dpi=png_dpi, bbox_inches="tight")
+    fig.savefig(paths[1], bbox_inches="tight")
+    return paths
+
+
+def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None = None,
+                       published: pd.DataFrame | None = None) -> list[Path]:
     """For a suite with cells: ``reproduction.png``/``.pdf`` (one panel per cell, our seeds and the published ones,
     windows shaded, verdicts) and ``reproduction.md``/``.csv`` (the table of checks; the Markdown adds what the runs
     cost, :func:`harness.reproduction.ladder_cost`, and the commits that produced the rows,
@@ -125,22 +146,11 @@ def write_reproduction(suite: str, df: pd.DataFrame, out: Path, doc: str | None 
     ``<!-- table:SUITE -->`` block of the Markdown file ``doc``."""
     from harness import ladder_provenance as P
     from harness import reproduction as R
-    from harness.data import DataNotFoundError
     from harness.ladder_figure import plot_ladder
-    from harness.results import load_published
 
     ladder = R.load_ladder(suite)
-    try:
-        published = load_published()
-    except (DataNotFoundError, OSError) as e:
-        print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
-        published = None
-    written = []
     fig = plot_ladder(ladder, df, published)
-    for ext in ("png", "pdf"):
-        p = out / f"reproduction.{ext}"
-        fig.savefig(p, dpi=150 if ext == "png" else None, bbox_inches="tight")
-        written.append(p)
+    written = _save_figure(fig, out / "reproduction", 150)
     t = R.ladder_table(ladder, df, published=published)
     tables = (R.table_markdown(t) + "\nWhat the runs cost (the shipped rows):\n\n" + P.cost_markdown(P.ladder_cost(ladder, df))
               + "\nThe commits that produced the rows (`git_sha`), with the steps each one evaluated:\n\n"
@@ -171,8 +181,7 @@ def _check_doc(ov: dict, suite: str | None) -> None:
 
 
 def report_cli(overrides: list[str]) -> int:
-    from harness.data import DataNotFoundError
-    from harness.results import COLUMNS, META_COLUMNS, RETURN_ENVS, load, load_published, runs_holding
+    from harness.results import COLUMNS, META_COLUMNS, RETURN_ENVS, load, runs_holding
 
     ov = parse(overrides)
     for key in ("results", "out", "suite", "doc"):
@@ -212,7 +221,8 @@ def report_cli(overrides: list[str]) -> int:
         out.mkdir(parents=True, exist_ok=True)
         print(f"harness report: note: no results for suite {suite!r} under {results} yet: its checks are shown, "
               "not started", file=sys.stderr)
-        for p in write_reproduction(suite, pd.DataFrame(columns=COLUMNS + META_COLUMNS), out, ov.get("doc")):
+        for p in write_reproduction(suite, pd.DataFrame(columns=COLUMNS + META_COLUMNS), out, ov.get("doc"),
+                                    _published()):
             print(p)
         return 0
     if df.empty:
@@ -242,22 +252,14 @@ def report_cli(overrides: list[str]) -> int:
     cells_df = df  # the reproduction verdicts read cells by their own names
     df = A.separate_suites(df)  # a method's runs from several suites are never pooled (MEDAL · smoke, ...)
     curves = A.learning_curves(df, metric, window=window)
+    published = _published()  # the evidence then has the final-window verdicts only
     pub_curves = None
-    if srcs:
-        try:
-            pub = A.select(load_published(), metric, source=srcs)
-            pub = A.same_pairs(pub, curves)
-            pub_curves = A.learning_curves(pub, metric, window=window)
-        except (DataNotFoundError, OSError) as e:
-            print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
+    if srcs and published is not None:
+        pub_curves = A.learning_curves(A.same_pairs(A.select(published, metric, source=srcs), curves), metric,
+                                       window=window)
 
     out.mkdir(parents=True, exist_ok=True)
-    written = []
-    fig = plot_curves(curves, pub_curves, metric)
-    for ext in ("png", "pdf"):
-        p = out / f"curves.{ext}"
-        fig.savefig(p, dpi=200 if ext == "png" else None, bbox_inches="tight")
-        written.append(p)
+    written = _save_figure(plot_curves(curves, pub_curves, metric), out / "curves", 200)
 
     t = table1(df, step=step)
     for name, text in (("table1.md", table1_markdown(t)), ("table1.tex", table1_latex(t)),
@@ -265,13 +267,9 @@ def report_cli(overrides: list[str]) -> int:
         (out / name).write_text(text)
         written.append(out / name)
 
-    try:
-        published_all = load_published()
-    except (DataNotFoundError, OSError):
-        published_all = None  # the evidence then has the final-window verdicts only
     (out / "table1_evidence.md").write_text(
         "Which Table-1 cells the results verify (reproduction cells, docs/reproduction.md):\n\n"
-        + evidence_markdown(table1_evidence(everything, published_all, runs_holding(results))))
+        + evidence_markdown(table1_evidence(everything, published, runs_holding(results))))
     written.append(out / "table1_evidence.md")
 
     scores = A.final_scores(df, step=step)
@@ -279,7 +277,7 @@ def report_cli(overrides: list[str]) -> int:
     agg.to_csv(out / "aggregates.csv", index=False)
     written.append(out / "aggregates.csv")
     if is_cells_suite(suite):
-        written += write_reproduction(suite, cells_df, out, ov.get("doc"))
+        written += write_reproduction(suite, cells_df, out, ov.get("doc"), published)
     for p in written:
         print(p)
     return 0

@@ -90,6 +90,25 @@ def test_eval_schedule_metrics_and_layout(tmp_path):
     assert (df[df.metric == "interventions"].value == 0).all()  # H_T = 200k never reached
 
 
+def test_status_stays_live_between_evaluations(tmp_path, monkeypatch):
+    """`harness status` and the dashboard read status.json: a run rewrites it about every 10 s of training, not only
+    at its evaluations (minutes apart on a slow env), with the step reached and the training rate."""
+    import harness.protocol as protocol
+    from harness.results import read_status
+
+    clock = iter(np.arange(0.0, 1e9, 11.0))  # the loop reads the clock every 1,000 steps: each read 11 s later
+    monkeypatch.setattr(protocol.time, "perf_counter", lambda: next(clock))
+    seen = []
+    real = protocol.write_status
+    monkeypatch.setattr(protocol, "write_status", lambda d, **f: (seen.append(f), real(d, **f)))
+    spec = _spec(tmp_path, steps=4000, eval_every=4000, seeds=[0])
+    train(spec, _algo(spec.seeds))
+    between = [f for f in seen if 0 < f["step"] < 4000]
+    assert [f["step"] for f in between] == [1000, 2000, 3000]
+    assert all(f["state"] == "running" and f["total"] == 4000 and f["steps_per_s"] > 0 for f in between)
+    assert read_status(tmp_path / "t" / "tabletop_manipulation" / "scripted" / "seed=0")["state"] == "done"
+
+
 def test_hard_reset_every_train_horizon_counts_interventions(tmp_path, monkeypatch):
     import harness.env_pool as env_pool
     from harness.envs import make_env, make_train_env

@@ -85,3 +85,14 @@ def test_tuning_suite_on_request(results, tmp_path):
 def test_empty_results_dir(tmp_path):
     with pytest.raises(ConfigError, match="no results"):
         report_cli([f"results={tmp_path}"])
+
+
+def test_without_the_published_curves_one_warning_and_ours_alone(results, tmp_path, monkeypatch, capsys):
+    """A data directory without EARL's reference curves: the report still writes every file, and says once why the
+    published curves are missing (they were read once for the curves, the evidence and the reproduction checks)."""
+    monkeypatch.setenv("HARNESS_DATA_DIR", str(tmp_path / "empty"))
+    assert report_cli([f"results={results}", f"out={tmp_path / 'out'}", "suite=fixture"]) == 0
+    err = capsys.readouterr().err
+    assert err.count("published curves not drawn") == 1, err
+    assert (tmp_path / "out" / "curves.png").stat().st_size > 100
+    assert (tmp_path / "out" / "table1_evidence.md").exists()
