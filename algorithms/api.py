@@ -181,10 +181,12 @@ _SUFFIXES = {"k": 10**3, "m": 10**6, "b": 10**9, "g": 10**9}
 
 
 def parse_int(name: str, value: Any) -> int:
-    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5``, ``300_000`` and ``300k`` / ``1.5M`` (k = 10^3,
+    """An integer from a YAML/CLI value; accepts ``300000``, ``3e5``, ``300_000``, ``300,000`` and ``300k`` / ``1.5M`` (k = 10^3,
     M = 10^6, B or G = 10^9, either case; read in decimal, so 1.1M is 1,100,000 exactly). Digits are read exactly,
     however many; a value too long to show is cut in the message."""
     text = str(value).strip().replace("_", "")
+    if re.fullmatch(r"[+-]?[0-9]{1,3}(,[0-9]{3})+", text):  # 300,000: as the plans and tables print it
+        text = text.replace(",", "")
     shown = repr(value) if len(str(value)) <= 40 else f"{str(value)[:20]!r}... ({len(str(value))} characters)"
     if re.fullmatch(r"[+-]?[0-9]+", text):  # ASCII digits only (str.isdigit takes other scripts' digits too)
         if len(text) > 400:  # beyond any bound a setting declares (and Python's int() digit limit)

@@ -105,7 +105,8 @@ class VaPRLConfig(GCConfig):
     task_goal_test: str = setting("agent", "which test judges reaching g* (the task's goal states) when goal_coords / "
                                            "goal_threshold set another: agent = that test, as every other goal; task = "
                                            "the task's own (EARL's)", choices=TASK_GOAL_TEST)
-    kappa: float = setting(0.5, "value threshold = kappa * v_max (per-env values NOT FOUND)", ge=0, le=1e3)
+    kappa: float = setting(0.5, "value threshold = kappa * v_max (a DEFAULT: the per-env values were not found in the "
+                                "sources)", ge=0, le=1e3)
     v_max: float = setting(0.0, "the threshold's unit; 0: the most one phase can earn in the critic's units, "
                                 "reward_scale x (1 if success ends the phase, else (1 - gamma^H) / (1 - gamma), "
                                 "H = phase_step_limit)", ge=0, le=1e9)

@@ -24,6 +24,9 @@ if TYPE_CHECKING:
     from harness.plan import RunSpec
 
 WARMUP, MEASURE = 120, 120  # seed-phase steps (no updates), then timed steps with updates
+#: groups of at most this many steps per seed are not measured: measuring one (WARMUP + MEASURE steps and an
+#: evaluation episode, plus building the agent) takes about as long as running it
+SHORT_STEPS = 2_000
 
 
 def _cache_file() -> Path:
@@ -67,10 +70,12 @@ def eval_costs(groups: list[RunSpec], threads: int) -> list[float | None]:
 def group_seconds(group: RunSpec, steps_left: int, rate: float, eval_s_per_step: float | None) -> float:
     """Seconds ``group`` needs for ``steps_left`` more steps per member at ``rate`` steps/s per member, with its
     evaluations (every ``eval_every`` steps, ``eval_episodes`` episodes of H_E steps) at their measured cost, or
-    :data:`EVAL_SHARE` more where that was not measured."""
+    :data:`EVAL_SHARE` more where that was not measured. The measured rate is of updating steps: the first
+    ``seed_steps`` of a run (random actions, no update) are left out of the training time."""
     from harness.envs import env_info
 
-    train = steps_left / rate
+    random_left = max(min(steps_left, int(group.config.get("seed_steps", 0)) - (group.steps - steps_left)), 0)
+    train = (steps_left - random_left) / rate
     if eval_s_per_step is None:
         return train * (1 + EVAL_SHARE)
     evals = -(-steps_left // group.eval_every)

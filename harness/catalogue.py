@@ -23,10 +23,11 @@ def algorithm_names() -> tuple[str, ...]:
 
 
 def algorithm_name(word: str) -> str:
-    """The registry name of the algorithm ``word`` names in any case (``MEDAL`` -> ``medal``); any other word
-    unchanged (the check that follows names it as unknown)."""
-    by_lower = {n.lower(): n for n in algorithm_names()}
-    return word if word in by_lower.values() else by_lower.get(word.lower(), word)
+    """The registry name of the algorithm ``word`` names in any case or with dashes (``MEDAL`` -> ``medal``,
+    ``risc-no-tab`` -> ``risc_no_tab``); any other word unchanged (the check that follows names it as unknown)."""
+    from harness.words import name_of
+
+    return name_of(word, algorithm_names(), parts=False)
 
 
 def algorithm_summaries() -> dict[str, str]:

@@ -21,180 +21,47 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 from typing import Any
 
 from harness import command_keys as keys
 from harness import data as data_mod
-from harness.words import ConfigError, UsageError, boolean, optional_integer, parse_words
+from harness.commands import (
+    LIST_PARTS,
+    cmd_bench,
+    cmd_data,
+    cmd_list,
+    cmd_report,
+    cmd_run,
+    cmd_ship,
+    cmd_status,
+    cmd_tune,
+)
+from harness.words import ConfigError
+
+#: the flags argparse itself reads; any other ``--key value`` / ``--key=value`` is the word ``key=value``
+FLAGS = ("--dry-run", "--best", "--data-dir", "--dest", "--base-url", "--help", "-h", "--version")
 
 
-def parse_overrides(items: list[str], allowed: set[str] | None = None) -> dict[str, str]:
-    """``key=value`` words into a dict (values stay strings; callers validate)."""
-    return parse_words(items, allowed)[0]
-
-
-def _csv(v: str | None) -> list[str] | None:
-    return [x for x in v.split(",") if x] if v else None
-
-
-def cmd_list(args) -> int:
-    from harness.catalogue import algorithm_summaries
-    from harness.envs import ENVS, UNAVAILABLE_ENVS
-    from harness.suites import list_suites, load_suite
-
-    print("algorithms:")
-    for name, doc in algorithm_summaries().items():
-        print(f"  {name:<14} {doc}")
-    print("envs:")
-    for name, info in ENVS.items():
-        why = info.unavailable()  # an optional simulator not installed
-        print(f"  {name:<22} {why}" if why else f"  {name}")
-    for name, why in UNAVAILABLE_ENVS.items():
-        print(f"  {name:<22} {why}")
-    print("suites:")
-    for name in list_suites():
-        print(f"  {name:<14} {load_suite(name)[1].get('description', '')}")
-    return 0
-
-
-def cmd_data(args) -> int:
-    if args.data_cmd == "fetch":
-        dest = Path(args.dest) if args.dest else None
-        out = data_mod.fetch(dest=dest, base_url=args.base_url)
-        print(f"EARL demonstrations written to {out}")
-        return 0
-    if args.data_cmd == "scripted":
-        from harness.envs import ENVS
-        from harness.envs.experts import generate_demos
-
-        ov = parse_overrides(args.overrides, {"env", *keys.SCRIPTED})
-        envs = _csv(ov.get("envs") or ov.get("env")) or [e for e, info in ENVS.items() if info.experts]
-        for e in envs:
-            if e not in ENVS:
-                raise UsageError(f"unknown env {e!r}; known envs: {', '.join(ENVS)}")
-            if not ENVS[e].experts:
-                raise UsageError(f"env {e!r} has no scripted experts (its EnvInfo.experts): no scripted demos")
-        out = Path(ov["out"]) if "out" in ov else data_mod.cache_dir()
-        seed = optional_integer("seed", ov.get("seed"), 0)
-        from harness.envs.base import resolve
-
-        writers = dict.fromkeys(ENVS[e].offline_assets for e in envs if ENVS[e].offline_assets)
-        for writer in writers:
-            resolve(writer)(out)  # the env's model files (checked against EARL's), before the env is built
-        if writers and data_mod.explicit_data_dir() is None:
-            data_mod.set_data_dir(out)  # the experts' envs load the model files just written
-        for e in envs:
-            for direction, n in zip(data_mod.DIRECTIONS, ENVS[e].scripted_demos):
-                arrays = generate_demos(e, direction, n, seed)
-                path = out / "demos" / e / f"{direction}.npz"
-                data_mod.save_demos(path, arrays, source="scripted")
-                print(f"{path}: {n} scripted trajectories, {len(arrays['actions'])} transitions")
-        return 0
-    raise UsageError("usage: harness data {fetch,scripted}")
-
-
-def cmd_bench(args) -> int:
-    if args.what == "env":
-        from harness.bench.env import bench_env
-        from harness.envs import check_env
-
-        ov = parse_overrides(args.overrides, {"env", *keys.BENCH["env"]})
-        envs = _csv(ov.get("envs") or ov.get("env"))
-        for e in envs or []:
-            check_env(e)  # unknown, never released or its simulator not installed: one line
-        steps = optional_integer("steps", ov.get("steps"), 0, 1) if "steps" in ov else None
-        bench_env(envs, steps, optional_integer("repeats", ov.get("repeats"), 5, 1))
-        return 0
-    if args.what == "train":
-        from harness.bench.train import bench_train_cli
-
-        return bench_train_cli(parse_overrides(args.overrides))
-    if args.what == "update":
-        from harness.bench.update import bench_update_cli
-
-        return bench_update_cli(parse_overrides(args.overrides))
-    if args.what == "matmul":
-        from harness.bench.env import bench_matmul
-
-        ov = parse_overrides(args.overrides, set(keys.BENCH["matmul"]))
-        bench_matmul(optional_integer("members", ov.get("members"), 2, 1),
-                     optional_integer("repeats", ov.get("repeats"), 5, 1))
-        return 0
-    if args.what == "app":
-        from harness.bench.app import bench_app_cli
-
-        return bench_app_cli(parse_overrides(args.overrides, set(keys.BENCH["app"])))
-    raise UsageError(f"unknown benchmark {args.what!r}; known: env, train, update, matmul, app")
-
-
-def cmd_run(args) -> int:
-    from harness.runner import run_cli
-
-    return run_cli(args.overrides, dry_run=args.dry_run)
-
-
-def cmd_report(args) -> int:
-    from harness.report import report_cli
-
-    return report_cli(args.overrides)
-
-
-def cmd_ship(args) -> int:
-    from harness.results import ship
-
-    ov = parse_overrides(args.overrides, set(keys.SHIP))
-    if "suite" not in ov or "results" not in ov:
-        raise UsageError("usage: harness ship suite=NAME results=DIR [to=results] [force=true]")
-    force = boolean("force", ov.get("force", "false"))
-    written, kept = ship(ov["results"], ov["suite"], ov.get("to", "results"), force=force)
-    runs = len({p.parent for p in written})
-    print(f"{len(written)} files of {runs} run(s) copied to {Path(ov.get('to', 'results')) / ov['suite']}")
-    for run in kept:
-        print(f"kept the shipped table of {run}; force=true replaces it")
-    dest = Path(ov.get("to", "results")) / ov["suite"]
-    ignored = git_ignored(dest) if written else None
-    if ignored is not None:
-        print(f"harness: note: {dest} is ignored by git, so the shipped tables will not be committed; un-ignore it "
-              f"(a line '!/{ignored}/' in .gitignore) to ship them with the code", file=sys.stderr)
-    return 0
-
-
-def git_ignored(path: Path) -> str | None:
-    """``path`` relative to the root of the git work tree it lies in, if that work tree ignores it; None when it does
-    not, outside a work tree, or without git."""
-    import subprocess
-
-    def git(*words: str) -> subprocess.CompletedProcess:
-        return subprocess.run(["git", *words], cwd=path, capture_output=True, text=True, timeout=10)
-
-    try:
-        if git("check-ignore", "-q", ".").returncode != 0:
-            return None
-        root = git("rev-parse", "--show-toplevel").stdout.strip()
-        return path.resolve().relative_to(Path(root).resolve()).as_posix()
-    except (OSError, ValueError, subprocess.SubprocessError):
-        return None
-
-
-def cmd_status(args) -> int:
-    from harness.run_status import run_status, status_text
-
-    ov = parse_overrides(args.overrides, set(keys.STATUS))
-    results = Path(ov.get("results", "results"))
-    if not results.is_dir():
-        raise UsageError(f"results directory not found: {results}; pass results=DIR (where `harness run` wrote)")
-    df = run_status(results)
-    if "suite" in ov:
-        df = df[df["suite"] == ov["suite"]]
-    print(status_text(df))
-    return 0
-
-
-def cmd_tune(args) -> int:
-    from harness.tune.command import tune_cli
-
-    return tune_cli(args.overrides, best=args.best)
+def flag_words(argv: list[str]) -> list[str]:
+    """The command line as people type it, in the harness's words: ``--steps 3000`` and ``--steps=3000`` become
+    ``steps=3000`` (the key's dashes are read as underscores later), and ``--data-dir DIR`` may stand anywhere (it
+    moves before the command)."""
+    front, out, i = [], [], 0
+    while i < len(argv):
+        w = argv[i]
+        name, has_value = w.split("=", 1)[0], "=" in w
+        nxt = argv[i + 1] if i + 1 < len(argv) else None
+        takes_next = not has_value and nxt is not None and not nxt.startswith("-") and "=" not in nxt
+        if name == "--data-dir":
+            front += [w] if has_value or nxt is None else [w, nxt]
+            i += 1 if has_value or nxt is None else 2
+        elif name.startswith("--") and len(name) > 2 and name not in FLAGS and (has_value or takes_next):
+            out.append(f"{name[2:]}={w.split('=', 1)[1] if has_value else nxt}")
+            i += 1 if has_value else 2
+        else:
+            out.append(w)
+            i += 1
+    return front + out
 
 
 def keys_help(table: dict[str, Any], algorithm_settings: bool = True) -> str:
@@ -233,8 +100,26 @@ class Parser(argparse.ArgumentParser):
         return super().format_help()
 
     def error(self, message: str):
+        import re
+
+        from harness.words import did_you_mean
+
+        bad = re.fullmatch(r"argument (\w+): invalid choice: '(.*)' \(choose from (.*)\)", message)
+        if bad:  # argparse's own words (its dest names, quoting) said as the command's
+            known = [c.strip(" '") for c in bad[3].split(",")]
+            what = "command" if bad[1] == "cmd" else "choice"
+            message = f"unknown {what} {bad[2]!r}{did_you_mean(bad[2], known)}; known: {', '.join(known)}"
         print(f"harness: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
         sys.exit(2)
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("earl-harness")
+    except PackageNotFoundError:
+        return "(not installed)"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -249,8 +134,11 @@ def build_parser() -> argparse.ArgumentParser:
                    "  streamlit run app.py                            the dashboard\n"
                    "  harness COMMAND --help                          a command's keys"))
     p.add_argument("--data-dir", help="EARL data directory (default: HARNESS_DATA_DIR, cache, ../shared/earl)")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     sub = p.add_subparsers(dest="cmd", required=True, parser_class=Parser)
-    sub.add_parser("list", help="list algorithms, envs and suites").set_defaults(fn=cmd_list)
+    ls = sub.add_parser("list", help="list algorithms, envs and suites (or one of them: harness list envs)")
+    ls.add_argument("what", nargs="?", choices=LIST_PARTS)
+    ls.set_defaults(fn=cmd_list)
 
     def run_help() -> str:
         from harness.request import RUN_KEYS
@@ -294,8 +182,9 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("data", help="fetch or generate demonstrations")
     dsub = d.add_subparsers(dest="data_cmd", required=True)
     f = dsub.add_parser("fetch", help="download EARL's demonstrations into the cache")
-    f.add_argument("--dest", help="target directory (default: the project cache)")
-    f.add_argument("--base-url", default=data_mod.EARL_REPO_URL)
+    f.add_argument("--dest", help="target directory (default: the project cache; also dest=DIR)")
+    f.add_argument("--base-url", default=data_mod.EARL_REPO_URL, help="also base_url=URL")
+    f.add_argument("overrides", nargs="*")
     s = dsub.add_parser("scripted", help="generate demonstrations with the scripted experts",
                         epilog=keys_help(keys.SCRIPTED, False), formatter_class=raw)
     s.add_argument("overrides", nargs="*")
@@ -324,17 +213,20 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     # flags may stand anywhere among the key=value words: argparse stops filling ``overrides`` at the first flag and
     # hands back the words after it, which are key=value words too
-    args, extra = parser.parse_known_args(argv)
+    words = flag_words(words)
+    if len(words) == 1 and words[0] in ("data", "bench"):  # a command of several: its help, not an argparse error
+        parser.parse_args([words[0], "--help"])
+    args, extra = parser.parse_known_args(words)
     if extra:
         if not hasattr(args, "overrides"):
-            parser.parse_args(argv)  # the usual argparse error for what is really unknown
+            parser.parse_args(words)  # the usual argparse error for what is really unknown
         flags = [w for w in extra if w.startswith("-")]
         if flags:  # name only the unknown flags, not the key=value words that followed them
-            top = [f for f in flags if f.split("=", 1)[0] == "--data-dir"]
+            from harness.words import did_you_mean
+
             command = " ".join(["harness", args.cmd, *([args.data_cmd] if getattr(args, "data_cmd", None) else [])])
-            why = (f"{top[0].split('=', 1)[0]} goes before the command (harness --data-dir DIR {args.cmd} ...)" if top
-                   else f"unknown flag(s) {' '.join(flags)} (see `{command} --help`)")
-            print(f"harness: error: {why}", file=sys.stderr)
+            print(f"harness: error: unknown flag(s) {' '.join(flags)}{did_you_mean(flags[0], FLAGS)} (see "
+                  f"`{command} --help`)", file=sys.stderr)
             return 2
         args.overrides = [*args.overrides, *extra]
     previous = data_mod._explicit_default

@@ -34,7 +34,7 @@ from harness.suites import (
     load_suite,
     resolve_algo_config,
 )
-from harness.words import names
+from harness.words import did_you_mean, names
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,8 @@ def _check_envs_algos(envs: list[str], algos: list[str]) -> None:
             raise ConfigError(str(err)) from None
     unknown = [a for a in algos if a not in ALGORITHMS]
     if unknown:
-        raise ConfigError(f"unknown algorithm(s) {unknown}; known: {', '.join(ALGORITHMS)}")
+        raise ConfigError(f"unknown algorithm(s) {unknown}{did_you_mean(unknown[0], ALGORITHMS)}; known: "
+                          f"{', '.join(ALGORITHMS)}")
 
 
 def _product_units(suite: dict[str, Any], req: RunRequest, left_out: list[str]) -> list[Unit]:
@@ -299,9 +300,24 @@ def check_results_dirs(plan: Plan) -> None:
                               "resuming it under the new code", file=sys.stderr)
                     continue
                 raise ConfigError(
-                    f"{p.parent} holds a run with another config (hash {old.get('config_hash')} != "
-                    f"{g.config_hash}); choose another results= directory or suite name"
+                    f"{p.parent} holds a run with another config ({config_changes(old, g)}); choose another results= "
+                    "directory or suite name, or give the run's own values to resume it"
                 )
+
+
+def config_changes(old: dict[str, Any], g: RunSpec, most: int = 4) -> str:
+    """What differs between a run's record (``run.yaml``) and the group ``g``: ``eval_every 1000 -> 2000, medal.lr
+    0.0003 -> 0.001``, the first ``most`` of them; the config hashes where the record has no config to compare."""
+    was = {k: old.get(k) for k in ("eval_every", "eval_episodes", "demo_source")}
+    now = {k: getattr(g, k) for k in was}
+    if isinstance(old.get("config"), dict):
+        was |= {f"{g.algo}.{k}": v for k, v in old["config"].items()}
+        now |= {f"{g.algo}.{k}": v for k, v in g.config.items()}
+    changed = [f"{k} {was.get(k, '(none)')} -> {now.get(k, '(none)')}" for k in sorted(set(was) | set(now))
+               if was.get(k) != now.get(k)]
+    if not changed:
+        return f"hash {old.get('config_hash')} != {g.config_hash}"
+    return ", ".join(changed[:most]) + (f" and {len(changed) - most} more" if len(changed) > most else "")
 
 
 def _check_writable(d: Path) -> None:

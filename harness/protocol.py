@@ -351,7 +351,7 @@ class TrainingRun:
             elif self.step % 1000 == 0 and time.perf_counter() - t_last_report > 10:
                 t_last_report = time.perf_counter()  # status.json too: `harness status` and the dashboard stay live
                 self.report((self.step - s_mark) / max(t_last_report - t_mark, 1e-9), self.status)
-        for d, succ in zip(self.dirs, self.last_success):
-            write_status(d, state="done", step=self.step, total=spec.steps, steps_per_s=rate, eta_s=0.0,
+        for d, succ in zip(self.dirs, self.last_success):  # a checkpoint past the budget (steps= lowered): its step
+            write_status(d, state="done", step=self.step, total=max(spec.steps, self.step), steps_per_s=rate, eta_s=0.0,
                          last_success=succ)
         return self.results

@@ -39,7 +39,7 @@ from harness.stats import aggregate_scores
 from harness.suites import ConfigError, list_suites, load_suite
 from harness.tables import table1, table1_csv, table1_latex, table1_markdown
 from harness.words import integer as parse_int
-from harness.words import parse_words
+from harness.words import name_of, parse_words
 
 Y_LABELS = {"deployed_success": "Deployed success", "deployed_return": "Deployed return",
             "continuing_reward": "Cumulative training reward", "interventions": "Interventions"}
@@ -188,13 +188,14 @@ def report_cli(overrides: list[str]) -> int:
         if key in ov and not str(ov[key]).strip():
             raise ConfigError(f"{key}= is empty: give a value (or leave {key} out for its default)")
     results = Path(ov.get("results", "results"))
-    if not results.exists():
-        raise ConfigError(f"results directory not found: {results}; run `harness run suite=...` first or pass results=DIR")
     suite = ov.get("suite")
     if suite:  # a suite of suites/ in any case
-        suite = next((s for s in list_suites() if s.lower() == suite.lower()), suite)
+        suite = name_of(suite, list_suites(), parts=False)
+    if not results.exists() and not is_cells_suite(suite):  # a suite of checks is reported before its runs too
+        raise ConfigError(f"results directory not found: {results}; run `harness run suite=...` first or pass results=DIR")
     out = Path(ov["out"]) if "out" in ov else results / "report" / (suite or "all")
-    metric = ov.get("metric", "deployed_success")  # deployed_return where every env selected publishes returns (below)
+    # deployed_return where every env selected publishes returns (below); success, return: the deployed ones
+    metric = name_of(ov.get("metric", "deployed_success"), CURVE_METRICS)
     if metric not in CURVE_METRICS:
         raise ConfigError(f"unknown metric {metric!r} for curves; known: {', '.join(CURVE_METRICS)}")
     step_opt = ov.get("step", "last")

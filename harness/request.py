@@ -12,13 +12,14 @@ Ray instance), and algorithm config as ``<algo>.<key>=value`` or ``all.<key>=val
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 from algorithms.update_modes import UPDATES
 from harness.catalogue import algorithm_name
 from harness.envs import ENVS, env_name
-from harness.words import ConfigError, boolean, names, parse_words
+from harness.words import ConfigError, boolean, did_you_mean, names, parse_words
 from harness.words import integer as _int
 
 #: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
@@ -53,7 +54,8 @@ RUN_KEYS: dict[str, Key] = {
     "algos": Key("same as algo"),
     "env": Key(f"env(s), comma-separated: {', '.join(ENVS)} (any case, or the gymnasium id: earl/SawyerDoor-v0)"),
     "envs": Key("same as env"),
-    "seeds": Key("a count (seeds 0..n-1) or a comma list of distinct seeds (one seed: 7, or [7])", 1),
+    "seeds": Key("a count (seeds 0..n-1) or a list of distinct seeds: 0,3,7 or 0-4 (one seed: 7, or [7])", 1),
+    "seed": Key("one seed: seed=7 is seeds=7,"),
     "steps": Key("training steps per run (300000, 3e5, 300k and 1.5M all work, here and in every step count)", None,
                  1, MAX_STEPS,
                  shown="/".join(f"{e.default_steps / 1e6:g}M" for e in ENVS.values()) + " per env"),
@@ -91,24 +93,55 @@ LOGGERS = ("parquet", "tensorboard")
 DEFAULT_STEPS = {name: e.default_steps for name, e in ENVS.items()}  # each env's EnvInfo.default_steps
 
 
+SEEDS_FORMS = "a count (seeds=3: seeds 0, 1, 2) or a list (seeds=0,4 or seeds=0-4; one seed: seeds=7, or seed=7)"
+
+
 def parse_seeds(v: Any) -> list[int]:
     """``seeds=``: a count n (seeds 0..n-1) or a list of distinct seeds: a YAML list, or on the command line
-    ``0,3,7``, ``[0,3,7]``, and for one seed ``7,`` or ``[7]``."""
+    ``0,3,7``, ``[0,3,7]``, ``0 3 7``, ranges ``0-4`` (``0-2,7``), and for one seed ``7,`` or ``[7]``."""
     raw = v
-    if isinstance(v, str) and ("," in v or v.startswith("[")):
-        v = v.removeprefix("[").removesuffix("]").split(",")
-        if not v[-1].strip():  # "7," is the list [7], "[]" the empty list
+    if isinstance(v, str) and re.search(r"[,\[\s-]", v.strip()):
+        v = re.split(r"\s*,\s*|\s+", v.strip().removeprefix("[").removesuffix("]").strip())
+        if not v[-1]:  # "7," is the list [7], "[]" the empty list
             v = v[:-1]
+        v = [x for part in v for x in _seed_range(part, raw)]
     if isinstance(v, (list, tuple)):
         if not v:
             raise ConfigError("seeds is an empty list")
-        seeds = [_int("seeds", x, 0, MAX_SEED) for x in v]
+        seeds = [_seed(x, raw) for x in v]
         if len(set(seeds)) != len(seeds):
             raise ConfigError(f"seeds must be distinct, got {raw!r}")
         if len(seeds) > MAX_SEEDS:
             raise ConfigError(f"at most {MAX_SEEDS} seeds per run command, got {len(seeds)}")
         return seeds
-    return list(range(_int("seeds", v, 1, MAX_SEEDS)))
+    if str(v).strip() in ("0", "0.0"):
+        raise ConfigError("seeds=0 asks for no seeds (seeds=N is a count); for seed 0 alone write seeds=0, or seed=0")
+    try:
+        return list(range(_int("seeds", v, 1, MAX_SEEDS)))
+    except ConfigError as e:
+        if "integer" not in str(e):
+            raise
+        raise ConfigError(f"seeds must be {SEEDS_FORMS}, got {raw!r}") from None
+
+
+def _seed(x: Any, raw: Any) -> int:
+    try:
+        return _int("seeds", x, 0, MAX_SEED)
+    except ConfigError as e:
+        if "integer" not in str(e):
+            raise
+        raise ConfigError(f"seeds must be {SEEDS_FORMS}, got {raw!r}") from None
+
+
+def _seed_range(part: str, raw: Any) -> list[Any]:
+    """``3-5`` -> [3, 4, 5]; any other part as it is."""
+    m = re.fullmatch(r"([0-9]+)-([0-9]+)", part)
+    if not m:
+        return [part]
+    lo, hi = int(m[1]), int(m[2])
+    if hi < lo or hi - lo >= MAX_SEEDS:
+        raise ConfigError(f"seeds range {part!r} in {raw!r} must go up, to at most {MAX_SEEDS} seeds")
+    return list(range(lo, hi + 1))
 
 
 def check_device(v: str, local: bool = True) -> str:
@@ -169,9 +202,10 @@ class RunRequest:
                 continue  # parse_words names it
             scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
             if scope is not None and scope != "all" and scope not in ALGORITHMS:
-                raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}; known: {', '.join(ALGORITHMS)}")
+                raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}{did_you_mean(scope, ALGORITHMS)}; "
+                                  f"known: {', '.join(ALGORITHMS)}")
         ov, config = parse_words(words, RUN_KEYS, scope=lambda s: s == "all" or s in ALGORITHMS)
-        for a, b in (("algo", "algos"), ("env", "envs")):
+        for a, b in (("algo", "algos"), ("env", "envs"), ("seed", "seeds")):
             if a in ov and b in ov:
                 raise ConfigError(f"give {a}= or {b}=, not both")
         def given(key: str) -> Any:
@@ -205,7 +239,8 @@ class RunRequest:
             suite=ov.get("suite"), algos=tuple(names("algo", [algorithm_name(a) for a in names(
                 "algo", ov.get("algos") or ov.get("algo") or [])])),
             envs=tuple(names("env", [env_name(e) for e in names("env", ov.get("envs") or ov.get("env") or [])])),
-            seeds=tuple(parse_seeds(ov["seeds"])) if "seeds" in ov else None, steps=opt("steps"),
+            seeds=tuple(parse_seeds(ov["seeds"] if "seeds" in ov else f"{ov['seed']},")) if {"seed", "seeds"} & set(ov)
+            else None, steps=opt("steps"),
             eval_every=opt("eval_every"), eval_episodes=opt("eval_episodes"), checkpoint_every=opt("checkpoint_every"),
             keep_every=opt("keep_every"), log_every=opt("log_every"), members=opt("members"), workers=opt("workers"),
             device=device, results=given("results"), backend=backend, ray_address=ov.get("ray_address"),

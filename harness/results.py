@@ -171,6 +171,8 @@ def load(path: str | Path, warn=None, filename: str = EVALS_FILE) -> pd.DataFram
     warn = warn or (lambda msg: print(msg, file=sys.stderr))
     tables = []
     root = Path(path)
+    if not root.exists():  # a mistyped path is not "no results yet"
+        warn(f"no results directory {root} (from {Path.cwd()}): nothing loaded")
     files = [root] if root.is_file() else sorted(root.rglob(filename))
     for f in files:
         try:

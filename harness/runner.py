@@ -87,13 +87,16 @@ def _train_group(spec: RunSpec, command: str, say, should_stop) -> None:
     from harness.envs import get_spec
     from harness.protocol import train
     from harness.registry import ALGORITHMS
-    from harness.results import RUN_FILE
+    from harness.results import RUN_FILE, read_status
 
     meta = run_record(spec, command)
     # a finished run keeps the record of its run (unless it has none: a deleted run.yaml is written anew)
     if not all(finished(d, spec.steps) and (d / RUN_FILE).exists() for d in spec.member_dirs()):
         for d, s in zip(spec.member_dirs(), spec.seeds):
             atomic_write_bytes(d / RUN_FILE, yaml.safe_dump({**meta, "seed": s}, sort_keys=False).encode())
+    elif spec.steps < (reached := min(int(read_status(d)["step"]) for d in spec.member_dirs())):
+        say(f"[{spec.label}] done: trained to step {reached:,} already (steps={spec.steps:,}); nothing rewritten")
+        return  # a run further than asked stays as it is (status, rows)
     cls = ALGORITHMS[spec.algo_class]
     demos = DemoSet(load_env_demos(spec.env, "forward"), load_env_demos(spec.env, "reverse"))
     algo = cls(get_spec(spec.env), demos, cls.Config.from_dict(spec.config), list(spec.seeds), torch.device(spec.device))
@@ -134,16 +137,37 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
               f"and each run slower than one process per core (workers={cores})", file=sys.stderr)
     threads = calibration.worker_threads(plan.workers, str(plan.groups[0].device) if plan.groups else "cpu")
     todo = [i for i, (t, d) in enumerate(zip(total, done)) if d < t]
+    short = [i for i in todo if plan.groups[i].steps <= calibration.SHORT_STEPS]  # measuring costs what running does
+    todo = [i for i in todo if i not in short]
     rates = dict(zip(todo, calibration.rates([plan.groups[i] for i in todo], threads, calibrate)))
+    aw = max([12, *(len(g.algo) for g in plan.groups)])
+    sw = max([10, *(len(",".join(map(str, g.seeds))) for g in plan.groups)])
     for i, g in enumerate(plan.groups):
         speed = f"  {rates[i]:,.1f} steps/s per seed" if rates.get(i) else ""
         state = "  done" if done[i] == total[i] else f"  {done[i]:,} of {total[i]:,} steps done" if done[i] else ""
         mode = f"  update={g.update}" if g.update != "default" else ""
-        print(f"  {g.env:<22} {g.algo:<12} seeds={','.join(map(str, g.seeds)):<10} steps={g.steps:,} "
+        print(f"  {g.env:<22} {g.algo:<{aw}} seeds={','.join(map(str, g.seeds)):<{sw}} steps={g.steps:,} "
               f"eval every {g.eval_every:,} x {g.eval_episodes}  config {g.config_hash}{mode}{speed}{state}")
+    scripted = sorted({g.env for g in plan.groups if g.demo_source == "scripted"})
+    if scripted:
+        from harness.data import find_data_dir
+
+        print(f"harness: note: the demonstrations of {', '.join(scripted)} are scripted (`harness data scripted`, in "
+              f"{find_data_dir()}), not EARL's; results record demo_source=scripted", file=sys.stderr)
+    for g in plan.groups:
+        if g.steps <= int(g.config.get("seed_steps", 0)):
+            print(f"harness: note: {g.env}/{g.algo}: steps={g.steps:,} is within seed_steps={g.config['seed_steps']:,}"
+                  f" (random actions before the first update): these runs never update their networks; raise steps= "
+                  f"or lower {g.algo}.seed_steps=", file=sys.stderr)
+    unmeasured = (f" (+ {len(short)} short group(s) of at most {calibration.SHORT_STEPS:,} steps per seed, not measured:"
+                  " measuring one takes about as long as running it)") if short else ""
+    if not todo and short:
+        print(f"estimated time: not measured: every group is short (at most {calibration.SHORT_STEPS:,} steps per seed),"
+              " and measuring one takes about as long as running it")
+        return
     if any(rates[i] is None for i in todo):
         print("estimated time: not measured yet on this machine; `harness run ... --dry-run calibrate=true` (the "
-              "default) measures each kind of group for a few seconds (cached)")
+              f"default) measures each kind of group for a few seconds (cached){unmeasured}")
         return
     evals = dict(zip(todo, calibration.eval_costs([plan.groups[i] for i in todo], threads)))
     work = []
@@ -156,7 +180,7 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     print(f"estimated time: {format_duration(est)} on {plan.workers} worker(s) x {threads} thread(s), from speeds measured "
           f"on this machine{when} (evaluations " + ("included, as measured" if measured else
                                                      f"add ~{calibration.EVAL_SHARE:.0%} where not measured")
-          + "; other load on the machine slows it; calibrate=refresh measures again)")
+          + "; other load on the machine slows it; calibrate=refresh measures again)" + unmeasured)
     if est > LONG_PLAN_S:
         print(ways_forward(plan, work, est))
 

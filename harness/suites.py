@@ -29,7 +29,7 @@ from typing import Any
 
 import yaml
 
-from harness.words import ConfigError
+from harness.words import ConfigError, did_you_mean, name_of
 
 SUITES_DIR = Path(__file__).resolve().parent.parent / "suites"
 SUITE_KEYS = {"description", "algos", "envs", "seeds", "steps", "eval_every", "eval_episodes", "checkpoint_every",
@@ -95,10 +95,11 @@ def load_suite(name_or_path: str) -> tuple[str, dict[str, Any]]:
         path, name = p, check_name("suite", p.stem)
     else:
         check_name("suite", name_or_path)
-        name = next((s for s in list_suites() if s.lower() == name_or_path.lower()), name_or_path)  # any case
+        name = name_of(name_or_path, list_suites(), parts=False)  # any case, dashes for underscores
         path = SUITES_DIR / f"{name}.yaml"
         if not path.exists():
-            raise ConfigError(f"unknown suite {name_or_path!r}; known suites: {', '.join(list_suites())}")
+            raise ConfigError(f"unknown suite {name_or_path!r}{did_you_mean(name_or_path, list_suites())}; known "
+                              f"suites: {', '.join(list_suites())}")
     d = _read_yaml(path)
     if not isinstance(d, dict):
         raise ConfigError(f"suite file {path} must be a mapping of keys to values")

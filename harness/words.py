@@ -9,7 +9,7 @@ setting), refusing a word without ``=``, an empty or unknown key, and a key give
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from typing import Any
 
 from algorithms.api import parse_int as _parse_int
@@ -33,6 +33,7 @@ def parse_words(words: list[str], allowed: Collection[str] | None = None, *,
         if "=" not in w:
             raise ConfigError(f"expected key=value, got {w!r}")
         k, v = w.split("=", 1)
+        k = key_word(k)
         if not k:
             raise ConfigError(f"empty key in {w!r}")
         if k in seen:
@@ -44,11 +45,41 @@ def parse_words(words: list[str], allowed: Collection[str] | None = None, *,
                 raise ConfigError(f"unknown scope {s!r} in {w!r}")
             scoped.setdefault(s, {})[key] = v
         elif allowed is not None and k not in allowed:
-            raise ConfigError(f"unknown key {k!r}; known keys: {', '.join(sorted(allowed))}"
+            raise ConfigError(f"unknown key {k!r}{did_you_mean(k, allowed)}; known keys: {', '.join(sorted(allowed))}"
                               + (" or <algo>.<key>" if scope is not None else ""))
         else:
             plain[k] = v
     return plain, scoped
+
+
+def key_word(k: str) -> str:
+    """A key as people type it, in the form the tables declare: any case, dashes for underscores (``eval-every``,
+    ``--steps`` after :func:`harness.cli.flag_words`)."""
+    return k.strip().lower().replace("-", "_")
+
+
+def name_of(word: str, known: Iterable[str], aliases: dict[str, str] | None = None, parts: bool = True) -> str:
+    """The name in ``known`` that ``word`` means: the name itself in any case, with dashes or spaces for its
+    underscores, an alias (``aliases``: other spellings, e.g. gymnasium ids, in any case), or with ``parts`` a part
+    of exactly one name (``door`` -> ``sawyer_door``); any other word unchanged (the check that follows names it as
+    unknown)."""
+    known = list(known)
+    if word in known:
+        return word
+    w = word.strip().lower().replace("-", "_").replace(" ", "_")
+    forms = {n.lower(): n for n in known} | {a.lower(): n for a, n in (aliases or {}).items()}
+    if w in forms or word.strip().lower() in forms:
+        return forms.get(w) or forms[word.strip().lower()]
+    holders = [n for n in known if parts and w and w in n.lower().split("_")]
+    return holders[0] if len(holders) == 1 else word
+
+
+def did_you_mean(word: str, known: Iterable[str]) -> str:
+    """`` (did you mean X?)`` for the closest name in ``known``, or nothing when none is close."""
+    import difflib
+
+    close = difflib.get_close_matches(str(word).lower(), [str(k) for k in known], n=1, cutoff=0.6)
+    return f" (did you mean {close[0]}?)" if close else ""
 
 
 def integer(key: str, value: Any, minimum: int = 0, maximum: int | None = None) -> int:

@@ -247,8 +247,11 @@ def test_harness_status_prints_every_run_with_its_progress(fixture_dir, tmp_path
     running = next(r for r in st.itertuples() if r.state == "running")
     line = next(x for x in out if x.split()[4:5] == ["running"])
     assert f"{running.step:,.0f}" in line and format_duration(running.eta_s) in line
-    assert main(["status", f"results={fixture_dir}", "suite=nope"]) == 0 and capsys.readouterr().out.strip() == \
-        "no runs"
+    assert main(["status", f"results={fixture_dir}", "suite=FIXTURE"]) == 0  # any case
+    assert len(capsys.readouterr().out.splitlines()) > 3
+    assert main(["status", f"results={fixture_dir}", "suite=fixtur"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("harness: error: no runs of suite 'fixtur'") and "(did you mean fixture?)" in err
     assert main(["status", f"results={tmp_path / 'none'}"]) == 2
     assert capsys.readouterr().err.strip().startswith("harness: error: results directory not found")
 
@@ -333,3 +336,16 @@ def test_runs_of_different_suites_are_never_pooled_as_seeds():
 
     assert algo_label("medal · smoke") == "MEDAL · smoke"
     assert method_color("medal · smoke") != method_color("medal · reproduction")
+
+
+def test_loading_a_mistyped_path_says_so(tmp_path):
+    """`harness.results.load` of a path that does not exist: the empty table, and a warning naming the path (a typo
+    is not "no results yet"); an existing empty directory is quiet."""
+    from harness.results import COLUMNS, load
+
+    said = []
+    df = load(tmp_path / "reslts", warn=said.append)
+    assert df.empty and list(df.columns)[: len(COLUMNS)] == COLUMNS
+    assert len(said) == 1 and f"no results directory {tmp_path / 'reslts'}" in said[0]
+    said.clear()
+    assert load(tmp_path, warn=said.append).empty and said == []

@@ -114,11 +114,18 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     assert main([*words, "--dry-run", "calibrate=false"]) == 0
     out = capsys.readouterr().out
     assert "not measured yet" not in out and out.count("100.0 steps/s per seed") == len(plan.groups)
-    # steps per member of each group, none done; an entry without an evaluation cost adds the usual share
-    work = [(g.steps, 100.0 / (1 + calibration.EVAL_SHARE)) for g in plan.groups]
+    # steps per member of each group, none done, its first seed_steps (no updates) not timed; an entry without an
+    # evaluation cost adds the usual share
+    work = [(g.steps, g.steps / ((g.steps - g.config["seed_steps"]) / 100.0 * (1 + calibration.EVAL_SHARE)))
+            for g in plan.groups]
     assert f"estimated time: {format_duration(calibration.estimate(work, plan.workers))} on" in out
     assert "(evaluations add ~3% where not measured;" in out
     assert not list(tmp_path.iterdir())
+    # short groups (the smoke suite's 400 steps) are not measured: that would take as long as running them
+    assert main(["run", "suite=smoke", f"results={tmp_path}", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "calibrating" not in out and "estimated time: not measured: every group is short (at most 2,000" in out
+    assert json.loads((state_dir() / "calibration.json").read_text()) == cache
 
 
 def test_the_estimate_counts_each_envs_evaluations_as_measured():
@@ -134,6 +141,11 @@ def test_the_estimate_counts_each_envs_evaluations_as_measured():
     assert calibration.group_seconds(peg, 2_000_000, 20.0, 0.004) == pytest.approx(100_000 + 200 * 10 * 200 * 0.004)
     assert calibration.group_seconds(peg, 2_000_000, 20.0, None) == pytest.approx(103_000)  # not measured: + 3%
     assert calibration.group_seconds(peg, 15_000, 20.0, 0.004) == pytest.approx(750 + 2 * 10 * 200 * 0.004)
+    # the first seed_steps (random actions, no update) are not timed at the measured rate of updating steps
+    seeded = RunSpec(suite="s", env="sawyer_peg", algo="risc", algo_class="risc", seeds=(0,), steps=15_000,
+                     config={"seed_steps": 10_000}, eval_every=100_000)
+    assert calibration.group_seconds(seeded, 15_000, 20.0, 0.0) == pytest.approx(250)  # 5,000 updating steps
+    assert calibration.group_seconds(seeded, 3_000, 20.0, 0.0) == pytest.approx(150)  # resumed at 12,000
 
 
 @requires_data
@@ -152,10 +164,10 @@ def test_a_long_plan_offers_ways_forward(tmp_path, capsys):
     (state_dir() / "calibration.json").write_text(json.dumps(cache))
     assert main(["run", *words, "--dry-run"]) == 0
     out = capsys.readouterr().out
-    # 5 one-seed groups of 10M steps at 100 steps/s (27h46m each), 3 on one of 2 workers: 83h20m; 16 workers: one
-    # group each, 27h46m; 2 seeds of 5: 33h20m
-    assert "estimated time: 83h20m" in out and "a Ray cluster of 8 machines like it" in out
-    assert "ray_address=auto: about 27h46m" in out and "seeds=2 (about 33h20m)" in out
+    # 5 one-seed groups of 10M steps, the first 10k without updates (not timed), at 100 steps/s (27h45m each), 3 on
+    # one of 2 workers: 83h15m; 16 workers: one group each, 27h45m; 2 seeds of 5: 33h18m
+    assert "estimated time: 83h15m" in out and "a Ray cluster of 8 machines like it" in out
+    assert "ray_address=auto: about 27h45m" in out and "seeds=2 (about 33h18m)" in out
     words[3] = "steps=100000"  # 1h23m: nothing to add
     assert main(["run", *words, "--dry-run"]) == 0 and "ways forward" not in capsys.readouterr().out
 
@@ -298,9 +310,54 @@ def test_names_and_step_counts_as_people_write_them():
     assert (req.steps, req.eval_every, req.checkpoint_every) == (1_500_000, 10_000, 50_000)
     assert [parse_int("n", v) for v in ("500k", "8m", "1.1M", "2.5B", ".5M", "3e5")] == \
         [500_000, 8_000_000, 1_100_000, 2_500_000_000, 500_000, 300_000]
-    for bad in ("1.2345k", "M", "1e6k", "1,5M"):
+    for bad in ("1.2345k", "M", "1e6k", "1,5M", "3,00", "30,00,000"):
         with pytest.raises(ValueError, match="must be an integer"):
             parse_int("n", bad)
+
+
+def test_gnu_flags_dashes_short_names_and_seed_forms():
+    """What people type from other tools: ``--steps 3000`` / ``--steps=3000`` (any key as a flag), dashes for
+    underscores in keys and names, an env by a part of its name alone or its gymnasium id without namespace or version,
+    ``steps=3,000`` as plans print it, ``seed=7`` for one seed, seed ranges and spaces; and the Python API takes the
+    same env names as the command line."""
+    from harness.cli import flag_words
+    from harness.envs import get_spec, make_env
+    from harness.request import RunRequest, parse_seeds
+
+    words = flag_words(["run", "--algo", "medal-logc", "--env=door", "--eval-every", "1000", "--dry-run", "--steps",
+                        "3,000", "--seed", "7", "x=1", "--data-dir", "/d"])
+    assert words == ["--data-dir", "/d", "run", "algo=medal-logc", "env=door", "eval-every=1000", "--dry-run",
+                     "steps=3,000", "seed=7", "x=1"]
+    req = RunRequest.from_words([w for w in words[3:] if w.count("=") == 1 and not w.startswith(("--", "x="))])
+    assert (req.algos, req.envs, req.eval_every, req.steps, req.seeds) == (("medal_logc",), ("sawyer_door",), 1000,
+                                                                           3000, (7,))
+    for word, name in [("Sawyer-Door", "sawyer_door"), ("SawyerDoor-v0", "sawyer_door"), ("SawyerPeg", "sawyer_peg"),
+                       ("tabletop", "tabletop_manipulation"), ("peg", "sawyer_peg"), ("MINITAUR", "minitaur")]:
+        assert RunRequest.from_words(["algo=naive", f"env={word}"]).envs == (name,), word
+    assert RunRequest.from_words(["algos=RISC-no-TAB", "env=door"]).algos == ("risc_no_tab",)
+    assert [parse_seeds(v) for v in ("0-2", "0-1,7", "0 3", "[4]", "2")] == [[0, 1, 2], [0, 1, 7], [0, 3], [4], [0, 1]]
+    assert get_spec("Sawyer_Door") is get_spec("earl/SawyerDoor-v0") is get_spec("door")
+    assert make_env("SawyerDoor-v0").spec_.name == "sawyer_door"
+
+
+def test_first_answers_without_argparse_words(capsys):
+    """``--version``; a mistyped command named with its closest; ``harness data`` / ``bench`` alone show their help;
+    ``harness list envs`` one part (with the gymnasium ids); ``data fetch dest=`` as a word."""
+    with pytest.raises(SystemExit) as e:
+        main(["--version"])
+    assert e.value.code == 0 and capsys.readouterr().out.startswith("harness ")
+    with pytest.raises(SystemExit) as e:
+        main(["lst"])
+    err = capsys.readouterr().err.strip()
+    assert e.value.code == 2 and err.startswith("harness: error: unknown command 'lst' (did you mean list?); known:")
+    for cmd in ("data", "bench"):
+        with pytest.raises(SystemExit) as e:
+            main([cmd])
+        assert e.value.code == 0 and f"usage: harness {cmd}" in capsys.readouterr().out
+    assert main(["list", "envs"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("envs:") and "earl/SawyerDoor-v0" in out and "algorithms:" not in out and "suites:" not in out
+    assert main(["list", "algos"]) == 0 and "medal_logc" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize(
@@ -310,12 +367,19 @@ def test_names_and_step_counts_as_people_write_them():
         (["algo=medal,MEDAL", "env=sawyer_door"], "algo lists medal more than once"),
         (["algo=medal", "env=sawyer_door", "steps=1.25k5"], "steps must be an integer"),
         (["algo=medal", "env=sawyer_door", "seeds=2,2"], "seeds must be distinct"),
-        (["algo=medal", "env=sawyer_door", "seeds=[x]"], "seeds must be an integer"),
+        (["algo=medal", "env=sawyer_door", "seeds=[x]"], "seeds must be a count (seeds=3: seeds 0, 1, 2) or a list"),
+        (["algo=medal", "env=sawyer_door", "seeds=0"], "for seed 0 alone write seeds=0, or seed=0"),
+        (["algo=medal", "env=sawyer_door", "seed=1", "seeds=2"], "give seed= or seeds=, not both"),
         (["colour=red", "algo=medal", "env=sawyer_door"], "unknown key 'colour'"),
         (["algo=nope", "env=sawyer_door"], "unknown algorithm"),
+        (["algo=medl", "env=sawyer_door"], "unknown algorithm(s) ['medl'] (did you mean medal?)"),
         (["algo=medal", "env=nope"], "unknown env 'nope'"),
+        (["algo=medal", "env=sawyer_dor"], "unknown env 'sawyer_dor' (did you mean sawyer_door?)"),
+        (["algo=medal", "env=sawyer"], "unknown env 'sawyer'"),  # a part of two names: neither
+        (["algo=medal", "env=sawyer_door", "stepz=3"], "unknown key 'stepz' (did you mean steps?)"),
         (["suite=nope"], "unknown suite 'nope'"),
-        (["algo=medal", "env=sawyer_door", "seeds=-1"], "seeds must be >= 1"),
+        (["suite=tabel1"], "unknown suite 'tabel1' (did you mean table1?)"),
+        (["algo=medal", "env=sawyer_door", "seeds=-1"], "seeds must be >= 0"),
         (["algo=medal", "env=sawyer_door", "steps=lots"], "steps must be an integer"),
         (["algo=medal", "env=sawyer_door", "medal.nope=3"], "unknown config key"),
         (["algo=medal", "env=sawyer_door", "medal.switch_every=x"], "switch_every must be an integer"),
@@ -324,8 +388,9 @@ def test_names_and_step_counts_as_people_write_them():
          "keep_every (30000) must be a multiple of checkpoint_every (20000)"),
         (["algo=medal", "env=sawyer_door", "keep_every=-1"], "keep_every must be >= 0"),
         (["algo=medal"], "give suite=NAME, or algo=... and env=..."),
-        (["algo=medal", "env=sawyer_door", "--dryrun"], "unknown flag(s) --dryrun (see `harness run --help`)"),
-        (["algo=medal", "env=sawyer_door", "--data-dir", "/x"], "--data-dir goes before the command"),
+        (["algo=medal", "env=sawyer_door", "--dryrun"],
+         "unknown flag(s) --dryrun (did you mean --dry-run?) (see `harness run --help`)"),
+        (["algo=medal", "env=sawyer_door", "--stepz", "3"], "unknown key 'stepz' (did you mean steps?)"),
         (["suite=reproduction", "algo=medal", "env=sawyer_peg"],
          "no cell of the suite matches algo=medal env=sawyer_peg"),
     ],
@@ -507,3 +572,38 @@ def test_runnable_only_leaves_out_what_cannot_run_and_says_why(tmp_path, capsys,
     pairs = {(g.algo, g.env) for g in plan.groups}
     assert len(pairs) == 14 * 3 + 2 * len(RETURN_ENV_ALGOS) and len(plan.left_out) == 16
     assert {a for a, e in pairs if e in ("kitchen", "minitaur")} == set(RETURN_ENV_ALGOS)
+
+
+@requires_data
+def test_a_run_further_than_asked_stays_and_a_changed_config_names_its_keys(tmp_path, capsys):
+    """Run again with a smaller steps= than a run reached, the run is done and nothing of it is rewritten (its status
+    still says how far it got); a changed setting on an existing run is refused naming what changed; a budget within
+    seed_steps is told it never updates."""
+    words = ["run", "algo=naive", "env=tabletop", "eval_every=100", "eval_episodes=1", "naive.seed_steps=100",
+             "naive.batch_size=8", f"results={tmp_path}"]
+    assert main([*words, "steps=300"]) == 0
+    run = tmp_path / "adhoc" / "tabletop_manipulation" / "naive" / "seed=0"
+    before = ((run / "status.json").read_text(), (run / "evals.parquet").read_bytes())
+    capsys.readouterr()
+    assert main([*words, "steps=200"]) == 0
+    assert "done: trained to step 300 already (steps=200); nothing rewritten" in capsys.readouterr().out
+    assert ((run / "status.json").read_text(), (run / "evals.parquet").read_bytes()) == before
+    assert main([*[w.replace("eval_every=100", "eval_every=150") for w in words], "steps=300", "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert "holds a run with another config (eval_every 100 -> 150)" in err, err
+    assert main([*[w.replace("seed_steps=100", "seed_steps=50") for w in words], "steps=300", "--dry-run"]) == 2
+    assert "(naive.seed_steps 100 -> 50)" in capsys.readouterr().err
+    assert main([*words[:-1], "steps=100", f"results={tmp_path / 'other'}", "--dry-run", "calibrate=false"]) == 0
+    assert "steps=100 is within seed_steps=100" in capsys.readouterr().err
+
+
+def test_a_suite_of_checks_is_reported_before_any_results_dir_exists(tmp_path, monkeypatch, capsys):
+    """`harness report suite=earl_returns` from a folder without results/: its checks, every one "not started"."""
+    from harness.report import report_cli
+    from harness.words import ConfigError
+
+    monkeypatch.chdir(tmp_path)
+    assert report_cli(["suite=earl_returns", f"out={tmp_path / 'out'}"]) == 0
+    assert "not started" in (tmp_path / "out" / "reproduction.md").read_text()
+    with pytest.raises(ConfigError, match="results directory not found"):
+        report_cli(["suite=smoke"])  # no checks to show: the results are needed

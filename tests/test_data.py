@@ -138,7 +138,7 @@ def test_fetch_without_network_is_one_line_naming_the_ways_on(tmp_path, capsys):
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    assert main(["data", "fetch", "--dest", str(tmp_path / "d"), "--base-url", f"http://127.0.0.1:{port}"]) == 2
+    assert main(["data", "fetch", f"dest={tmp_path / 'd'}", f"base_url=http://127.0.0.1:{port}"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "cannot download" in err and "harness data scripted" in err and "--data-dir" in err
     assert not (tmp_path / "d" / "demos").exists() or not list((tmp_path / "d").rglob("*.npz"))
@@ -161,7 +161,7 @@ def test_scripted_demos_cli(tmp_path):
     np.testing.assert_array_equal(demos.observations[0, 6:], [0, 0, 2.5, 0, -1, -1])  # goal = rho0
 
 
-def test_scripted_data_runs_every_env_without_network_or_earl_data(tmp_path):
+def test_scripted_data_runs_every_env_without_network_or_earl_data(tmp_path, capsys):
     """Offline, `harness data scripted` writes what the Sawyer envs need too: EARL's model files, rebuilt from the
     installed Meta-World's and checked against EARL's SHA-256 (so byte-identical to EARL's copies), then a run works
     with that directory as the only data."""
@@ -178,6 +178,7 @@ def test_scripted_data_runs_every_env_without_network_or_earl_data(tmp_path):
     assert load_demos("sawyer_door", "forward", data_dir=d).source == "scripted"
     assert main(["--data-dir", str(d), "run", "algo=naive", "env=sawyer_door", "steps=200", "eval_every=100",
                  "eval_episodes=1", "all.seed_steps=100", "all.batch_size=16", f"results={tmp_path / 'r'}"]) == 0
+    assert f"the demonstrations of sawyer_door are scripted (`harness data scripted`, in {d})" in capsys.readouterr().err
     # a Meta-World file that no longer rebuilds EARL's is one line naming it, nothing written
     bad = tmp_path / "mw"
     (bad / "objects" / "assets").mkdir(parents=True)

@@ -25,7 +25,7 @@ from harness.protocol import Interaction
 from harness.registry import ALGORITHMS
 from harness.runnable import check_runs_on
 from harness.suites import resolve_algo_config
-from harness.words import UsageError, optional_integer
+from harness.words import UsageError, did_you_mean, optional_integer
 
 
 def bench_train(algo: str, env: str, members: int, steps: int, device: str, repeats: int = 3, seed_steps: int = 1000,
@@ -82,7 +82,7 @@ def training_words(what: str, ov: dict[str, str]) -> tuple[str, str, str]:
         raise UsageError(f"unknown key {sorted(unknown)[0]!r}; known keys: {', '.join(sorted(allowed))}")
     algo, env = algorithm_name(ov.get("algo", "medal")), env_name(ov.get("env", "sawyer_door"))
     if algo not in ALGORITHMS:
-        raise UsageError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
+        raise UsageError(f"unknown algorithm {algo!r}{did_you_mean(algo, ALGORITHMS)}; known: {', '.join(ALGORITHMS)}")
     check_env(env)  # unknown, never released or its simulator not installed: one line
     update = ov.get("update", "default")
     if update not in UPDATES:

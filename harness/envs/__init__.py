@@ -57,19 +57,28 @@ class EnvUnavailableError(UnknownEnvError):
 
 
 def env_name(word: str) -> str:
-    """The registry name of the env ``word`` names: its name in any case, or its gymnasium id (``earl/SawyerDoor-v0``);
-    any other word unchanged (the check that follows names it as unknown)."""
-    known = {**{n.lower(): n for n in (*ENVS, *UNAVAILABLE_ENVS)},
-             **{info.spec.gym_id.lower(): n for n, info in ENVS.items()}}
-    return known.get(word.lower(), word)
+    """The registry name of the env ``word`` names (:func:`harness.words.name_of`): its name in any case or with
+    dashes (``Sawyer-Door``), its gymnasium id with or without namespace and version (``earl/SawyerDoor-v0``,
+    ``SawyerDoor``), or a part of one name alone (``door``, ``peg``, ``tabletop``); any other word unchanged (the
+    check that follows names it as unknown)."""
+    from harness.words import name_of
+
+    ids = {info.spec.gym_id: n for n, info in ENVS.items()}  # earl/SawyerDoor-v0, SawyerDoor-v0, SawyerDoor
+    aliases = {form: n for gid, n in ids.items()
+               for form in (gid, gid.split("/")[-1], gid.split("/")[-1].rsplit("-v", 1)[0])}
+    return name_of(word, (*ENVS, *UNAVAILABLE_ENVS), aliases)
 
 
 def env_info(name: str) -> EnvInfo:
-    """The registered :class:`EnvInfo` of ``name``; :class:`UnknownEnvError` (one line) when there is none."""
+    """The registered :class:`EnvInfo` of the env ``name`` names (:func:`env_name`); :class:`UnknownEnvError` (one
+    line) when there is none."""
+    name = env_name(name)
     if name in UNAVAILABLE_ENVS:
         raise EnvUnavailableError(f"env {name}: {UNAVAILABLE_ENVS[name]}")
     if name not in ENVS:
-        raise UnknownEnvError(f"unknown env {name!r}; known envs: {', '.join(ENVS)}")
+        from harness.words import did_you_mean
+
+        raise UnknownEnvError(f"unknown env {name!r}{did_you_mean(name, ENVS)}; known envs: {', '.join(ENVS)}")
     return ENVS[name]
 
 

@@ -12,8 +12,8 @@ import yaml
 
 from harness.request import RUN_KEYS, RunRequest
 from harness.suites import SUITES_DIR, ConfigError
+from harness.words import did_you_mean, parse_words
 from harness.words import integer as parse_int
-from harness.words import parse_words
 
 #: every key=value word of ``harness tune``: a :class:`~harness.request.Key` (those it shares with ``harness run`` are
 #: the run's own) or (default, meaning); ``harness tune --help`` prints this table
@@ -108,7 +108,7 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
 
     algo = algorithm_name(ov.get("algo", "medal"))
     if algo not in ALGORITHMS:
-        raise ConfigError(f"unknown algorithm {algo!r}; known: {', '.join(ALGORITHMS)}")
+        raise ConfigError(f"unknown algorithm {algo!r}{did_you_mean(algo, ALGORITHMS)}; known: {', '.join(ALGORITHMS)}")
     env = env_name(ov["env"]) if ov.get("env") else None
     if not env or "," in env:
         raise ConfigError("give one env=NAME to tune on")
