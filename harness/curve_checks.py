@@ -29,7 +29,9 @@ published data, the budget, the number of seeds and the rule.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -114,15 +116,57 @@ def faithful_windows(published: pd.DataFrame, steps: int, n: int, draws: int = D
     return out
 
 
-_MEMO: dict[tuple, object] = {}
+_MEMO: dict[str, object] = {}
 
 
 def _memo(name: str, published: pd.DataFrame, *args):
-    """A pure function of the published curves, memoised per process (the dashboard recomputes verdicts often)."""
-    key = (name, int(pd.util.hash_pandas_object(published[["seed", "step", "value"]], index=False).sum()), *args)
+    """A pure function of the published curves, memoised per process (the dashboard recomputes verdicts often) and
+    on disk (``<state>/curve_checks.json``, :func:`harness.data.state_dir`), keyed by the published values, the
+    arguments and this module's source: a report or a dashboard started anew answers at once."""
+    key = repr((name, int(pd.util.hash_pandas_object(published[["seed", "step", "value"]], index=False).sum()),
+                *args, _SOURCE))
     if key not in _MEMO:
-        _MEMO[key] = globals()[f"_{name}"](published, *args)
+        stored = _disk().get(key)
+        if stored is None:
+            stored = globals()[f"_{name}"](published, *args)
+            _store(key, stored)
+        _MEMO[key] = tuple(stored) if isinstance(stored, list) else stored
     return _MEMO[key]
+
+
+def _source_hash() -> str:
+    import hashlib
+
+    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+
+
+_SOURCE = _source_hash()
+
+
+def _disk_file() -> Path:
+    from harness.data import state_dir
+
+    return state_dir() / "curve_checks.json"
+
+
+def _disk() -> dict:
+    try:
+        d = json.loads(_disk_file().read_text())
+        return d if isinstance(d, dict) else {}
+    except (OSError, ValueError):
+        return {}
+
+
+def _store(key: str, value) -> None:
+    """Add one entry (entries of other code versions are dropped); a read-only state directory: kept in memory only."""
+    from harness.data import atomic_write_bytes
+
+    entries = {k: v for k, v in _disk().items() if _SOURCE in k}
+    entries[key] = value
+    try:
+        atomic_write_bytes(_disk_file(), json.dumps(entries).encode())
+    except OSError:
+        pass
 
 
 def allowance(published: pd.DataFrame, steps: int, n: int, rule: CurveRule = CurveRule()) -> tuple[int, float]:

@@ -72,6 +72,25 @@ def test_faithful_method_passes_a_fast_or_a_flat_one_fails():
     assert C.first_success_text(v).startswith("fail (too late): ours never, never")
 
 
+def test_the_faithful_methods_numbers_are_computed_once_per_machine(monkeypatch):
+    """The allowance and the first-success band (Monte Carlo over the published seeds, seconds for Table 1) are kept
+    on disk: a new process (the memo emptied) reads them back equal, without computing; other published values, or
+    other arguments, are computed."""
+    pub = published_five()
+    monkeypatch.setattr(C, "_MEMO", {})  # as a new process: what earlier tests computed is not in this one's state
+    a = C.allowance(pub, STEPS, 2)
+    band = C.first_success_band(pub, STEPS)
+    monkeypatch.setattr(C, "_MEMO", {})
+    monkeypatch.setattr(C, "_allowance", lambda *a: pytest.fail("computed again"))
+    monkeypatch.setattr(C, "_first_success_band", lambda *a: pytest.fail("computed again"))
+    assert C.allowance(pub, STEPS, 2) == a and isinstance(C.allowance(pub, STEPS, 2), tuple)
+    assert C.first_success_band(pub, STEPS) == band
+    with pytest.raises(pytest.fail.Exception, match="computed again"):
+        C.allowance(pub, STEPS, 3)
+    with pytest.raises(pytest.fail.Exception, match="computed again"):
+        C.allowance(pub.assign(value=pub["value"] * 0.9), STEPS, 2)
+
+
 def test_running_checks_wait_unless_nothing_to_come_can_turn_them():
     pub = published_five()
     ours = pd.concat([curve(ramp(230_000), 0, 150_000), curve(ramp(290_000), 1, 150_000)], ignore_index=True)
