@@ -32,21 +32,35 @@ def algorithm_name(word: str) -> str:
 
 def algorithm_summaries() -> dict[str, str]:
     """Registry name -> the first line of its class's docstring, in the registry's order."""
-    return dict(_summaries())
+    return {name: doc for name, (doc, _) in _summaries()}
+
+
+def algorithm_labels() -> dict[str, str]:
+    """Registry name -> its class's display ``label``: the live registry's where it is imported already, else read
+    from the source (every registered class sets its own), so reports and the dashboard name methods without torch."""
+    import sys
+
+    registry = sys.modules.get("harness.registry")
+    if registry is not None:
+        return {name: cls.label for name, cls in registry.ALGORITHMS.items()}
+    return {name: label for name, (_, label) in _summaries()}
 
 
 @lru_cache(maxsize=1)
-def _summaries() -> tuple[tuple[str, str], ...]:
-    """Parsed once per process: a suite of cells checks its names once per cell."""
+def _summaries() -> tuple[tuple[str, tuple[str, str]], ...]:
+    """(name, (docstring's first line, label)) per registered class, parsed once per process: a suite of cells checks
+    its names once per cell."""
     tree = ast.parse((ROOT / "harness" / "registry.py").read_text())
     module_of = {a.asname or a.name: node.module for node in tree.body if isinstance(node, ast.ImportFrom)
                  for a in node.names}
     table = next(node.value for node in tree.body if isinstance(node, ast.AnnAssign)
                  and isinstance(node.target, ast.Name) and node.target.id == "ALGORITHMS")
-    out: dict[str, str] = {}
+    out: dict[str, tuple[str, str]] = {}
     for key, value in zip(table.keys, table.values):
         cls = value.id
         source = ROOT / Path(*module_of[cls].split(".")).with_suffix(".py")
         node = next(n for n in ast.parse(source.read_text()).body if isinstance(n, ast.ClassDef) and n.name == cls)
-        out[key.value] = (ast.get_docstring(node) or "").strip().splitlines()[0]
+        label = next((n.value.value for n in node.body if isinstance(n, ast.Assign) and isinstance(n.value, ast.Constant)
+                      and any(isinstance(t, ast.Name) and t.id == "label" for t in n.targets)), "")
+        out[key.value] = ((ast.get_docstring(node) or "").strip().splitlines()[0], label)
     return tuple(out.items())

@@ -1,7 +1,8 @@
 """Names, order and colours of envs and methods, shared by ``app.py``, ``harness report`` and ``harness.tables``.
 
 The env order and labels are the env registry's (``harness.envs.ENVS``, each env's ``EnvInfo.label``); a method's
-label is its algorithm class's ``label`` (``harness.registry.ALGORITHMS``), published method names included
+label is its algorithm class's ``label`` (``harness.catalogue.algorithm_labels``, without importing torch), published
+method names included
 (:data:`PUBLISHED_ALIASES`, :data:`PUBLISHED_ONLY_LABELS`); a name outside both (a suite's variant) is its own label.
 """
 
@@ -9,8 +10,8 @@ from __future__ import annotations
 
 from typing import Iterable
 
+from harness.catalogue import algorithm_labels
 from harness.envs import ENVS
-from harness.registry import ALGORITHMS
 
 #: the env registry's order and labels (each env's ``EnvInfo.label``); :func:`env_label` reads the registry itself
 ENV_ORDER = tuple(ENVS)
@@ -80,12 +81,12 @@ def algo_label(algo: str) -> str:
     if COHORT_SEP in algo:  # a method split by suite: "MEDAL · reproduction"
         base, suite = algo.split(COHORT_SEP, 1)
         return f"{algo_label(base)}{COHORT_SEP}{suite}"
-    cls = ALGORITHMS.get(PUBLISHED_ALIASES.get(algo, algo))
-    return cls.label if cls is not None and cls.label else PUBLISHED_ONLY_LABELS.get(algo, algo)
+    label = algorithm_labels().get(PUBLISHED_ALIASES.get(algo, algo))
+    return label or PUBLISHED_ONLY_LABELS.get(algo, algo)
 
 
 #: every known method's label (a view of the registry, as imported)
-ALGO_LABELS = {a: algo_label(a) for a in (*ALGORITHMS, *PUBLISHED_ALIASES, *PUBLISHED_ONLY_LABELS)}
+ALGO_LABELS = {a: algo_label(a) for a in (*algorithm_labels(), *PUBLISHED_ALIASES, *PUBLISHED_ONLY_LABELS)}
 
 
 def order_envs(envs: Iterable[str]) -> list[str]:

@@ -505,12 +505,17 @@ def test_list_reads_the_registry_without_importing_it():
     from harness.registry import ALGORITHMS
 
     assert algorithm_summaries() == {n: (c.__doc__ or "").strip().splitlines()[0] for n, c in ALGORITHMS.items()}
+    code = ("import sys\nfrom harness.catalogue import algorithm_labels\nprint(repr(algorithm_labels()))\n"
+            "print('torch' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert eval(out[0]) == {n: c.label for n, c in ALGORITHMS.items()} and out[1] == "False"  # labels from the source
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["list"], ["run", "--bad-flag"], ["bench", "--help"], ["data", "--help"],
                                   ["run", "algo=nope", "env=sawyer_door"], ["run", "algo=medal", "env=nope"],
                                   ["run", "algo=medal", "env=sawyer_door", "steps=0"], ["run", "suite=nope"],
-                                  ["run", "nope.lr=1", "algo=medal", "env=sawyer_door"]])
+                                  ["run", "nope.lr=1", "algo=medal", "env=sawyer_door"], ["report", "results=nope"],
+                                  ["status", "results=nope"], ["list", "envs"], ["--version"]])
 def test_quick_answers_never_load_torch(argv):
     """The first commands a new user types, and the usage errors of a run, answer without importing torch (seconds on a
     loaded machine)."""
