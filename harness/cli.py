@@ -20,6 +20,7 @@ Bad input gets one line on stderr naming the problem and exit code 2; nothing is
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from typing import Any
 
@@ -42,23 +43,36 @@ from harness.words import ConfigError
 FLAGS = ("--dry-run", "--best", "--data-dir", "--dest", "--base-url", "--help", "-h", "--version")
 
 
+#: commands whose next word names what to do (``harness bench train``, ``harness data fetch``)
+GROUPS = ("bench", "data")
+
+
 def flag_words(argv: list[str]) -> list[str]:
-    """The command line as people type it, in the harness's words: ``--steps 3000`` and ``--steps=3000`` become
-    ``steps=3000`` (the key's dashes are read as underscores later), and ``--data-dir DIR`` may stand anywhere (it
-    moves before the command)."""
-    front, out, i = [], [], 0
+    """The command line as people type it, in the harness's words: after the command (and a ``bench``/``data``
+    command's own word), ``--steps 3000`` and ``--steps=3000`` become ``steps=3000`` (the key's dashes are read as
+    underscores later; a value may be a negative number, never another flag or a ``key=value`` word), up to a bare
+    ``--``; and ``--data-dir DIR`` may stand anywhere (it moves before the command)."""
+    front, out, i, commands = [], [], 0, []  # commands: the command's words seen so far
     while i < len(argv):
         w = argv[i]
         name, has_value = w.split("=", 1)[0], "=" in w
         nxt = argv[i + 1] if i + 1 < len(argv) else None
-        takes_next = not has_value and nxt is not None and not nxt.startswith("-") and "=" not in nxt
+        takes_next = not has_value and nxt is not None and "=" not in nxt and (
+            not nxt.startswith("-") or re.fullmatch(r"-[0-9.]+(e[+-]?[0-9]+)?", nxt) is not None)
+        command_done = len(commands) >= (2 if commands[:1] and commands[0] in GROUPS else 1)
+        if w == "--":
+            out += argv[i:]
+            break
         if name == "--data-dir":
             front += [w] if has_value or nxt is None else [w, nxt]
             i += 1 if has_value or nxt is None else 2
-        elif name.startswith("--") and len(name) > 2 and name not in FLAGS and (has_value or takes_next):
+        elif command_done and name.startswith("--") and len(name) > 2 and name not in FLAGS and (
+                has_value or takes_next):
             out.append(f"{name[2:]}={w.split('=', 1)[1] if has_value else nxt}")
             i += 1 if has_value else 2
         else:
+            if not command_done and not w.startswith("-"):
+                commands.append(w)
             out.append(w)
             i += 1
     return front + out
@@ -225,8 +239,9 @@ def main(argv: list[str] | None = None) -> int:
             from harness.words import did_you_mean
 
             command = " ".join(["harness", args.cmd, *([args.data_cmd] if getattr(args, "data_cmd", None) else [])])
-            print(f"harness: error: unknown flag(s) {' '.join(flags)}{did_you_mean(flags[0], FLAGS)} (see "
-                  f"`{command} --help`)", file=sys.stderr)
+            hint = (f" ({flags[0].split('=', 1)[0]} is not a flag of `{command}`)" if flags[0].split("=", 1)[0] in FLAGS
+                    else did_you_mean(flags[0], FLAGS))
+            print(f"harness: error: unknown flag(s) {' '.join(flags)}{hint} (see `{command} --help`)", file=sys.stderr)
             return 2
         args.overrides = [*args.overrides, *extra]
     previous = data_mod._explicit_default

@@ -90,10 +90,10 @@ def cmd_data(args) -> int:
 def cmd_bench(args) -> int:
     if args.what == "env":
         from harness.bench.env import bench_env
-        from harness.envs import check_env
+        from harness.envs import check_env, env_name
 
         ov = parse_overrides(args.overrides, {"env", *keys.BENCH["env"]})
-        envs = _csv(ov.get("envs") or ov.get("env"))
+        envs = [env_name(e) for e in _csv(ov.get("envs") or ov.get("env")) or []] or None
         for e in envs or []:
             check_env(e)  # unknown, never released or its simulator not installed: one line
         steps = optional_integer("steps", ov.get("steps"), 0, 1) if "steps" in ov else None

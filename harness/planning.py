@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from algorithms.update_modes import UPDATES
-from harness.envs import EnvUnavailableError, UnknownEnvError, check_env, env_info, load_env_demos
+from harness.envs import EnvUnavailableError, UnknownEnvError, check_env, env_info, env_name, load_env_demos
 from harness.packing import Machine, Work, pack
 from harness.plan import Plan, RunSpec
 from harness.provenance import git_sha
@@ -73,7 +73,7 @@ def _product_units(suite: dict[str, Any], req: RunRequest, left_out: list[str]) 
     ``runnable_only`` suite leaves out an env that cannot be built here (minitaur without pybullet), noted in
     ``left_out``."""
     algos = list(req.algos) or names("algo", suite.get("algos") or [])
-    envs = list(req.envs) or names("env", suite.get("envs") or [])
+    envs = list(req.envs) or names("env", [env_name(e) for e in names("env", suite.get("envs") or [])])
     if suite.get("runnable_only"):
         for e in list(envs):
             try:
@@ -87,6 +87,8 @@ def _product_units(suite: dict[str, Any], req: RunRequest, left_out: list[str]) 
     seeds = list(req.seeds) if req.seeds is not None else parse_seeds(suite.get("seeds", 1))
     members = RUN_KEYS["members"].parse("members", suite["members"]) if "members" in suite else None
     steps_cfg = req.steps if req.steps is not None else suite.get("steps", DEFAULT_STEPS)
+    if isinstance(steps_cfg, dict):  # per env, its names as the envs' (any case, a gymnasium id, ...)
+        steps_cfg = {env_name(str(e)): v for e, v in steps_cfg.items()}
     units = []
     for env in envs:
         if isinstance(steps_cfg, dict):
@@ -120,7 +122,7 @@ def _cell_units(suite: dict[str, Any], req: RunRequest, left_out: list[str]) -> 
             raise ConfigError(f"{where} must be a mapping with at least algo, env and steps")
         if set(c) - CELL_KEYS:
             raise ConfigError(f"unknown key(s) {sorted(set(c) - CELL_KEYS)} in {where}; known: {sorted(CELL_KEYS)}")
-        algo, env, name = str(c["algo"]), str(c["env"]), str(c.get("name") or c["algo"])
+        algo, env, name = str(c["algo"]), env_name(str(c["env"])), str(c.get("name") or c["algo"])
         _check_envs_algos([env], [algo])
         check_name(f"{where}:", name)
         if (env, name) in seen:

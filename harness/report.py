@@ -117,15 +117,17 @@ def is_cells_suite(suite: str | None) -> bool:
     return "cells" in load_suite(suite)[1]
 
 
-def _published() -> pd.DataFrame | None:
-    """The published curves, read once per report; where they cannot be read, one warning and ours alone."""
+def _published(warn: bool = True) -> pd.DataFrame | None:
+    """The published curves, read once per report; where they cannot be read, ours alone, and with ``warn`` (the
+    report draws or checks against them) one warning."""
     from harness.data import DataNotFoundError
     from harness.results import load_published
 
     try:
         return load_published()
     except (DataNotFoundError, OSError) as e:
-        print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
+        if warn:
+            print(f"harness report: warning: published curves not drawn: {' '.join(str(e).split())}", file=sys.stderr)
         return None
 
 
@@ -213,7 +215,7 @@ def report_cli(overrides: list[str]) -> int:
             raise ConfigError(f"unknown published source {s!r}; known: {', '.join(PUBLISHED_SOURCES)}, none")
 
     warnings: list[str] = []
-    df = load(results, warn=warnings.append)
+    df = load(results, warn=warnings.append) if results.exists() else pd.DataFrame(columns=COLUMNS + META_COLUMNS)
     for w in warnings:
         print(f"harness report: warning: {w}", file=sys.stderr)
     if suite and is_cells_suite(suite) and (df.empty or not (df["suite"] == suite).any()):
@@ -253,7 +255,7 @@ def report_cli(overrides: list[str]) -> int:
     cells_df = df  # the reproduction verdicts read cells by their own names
     df = A.separate_suites(df)  # a method's runs from several suites are never pooled (MEDAL · smoke, ...)
     curves = A.learning_curves(df, metric, window=window)
-    published = _published()  # the evidence then has the final-window verdicts only
+    published = _published(warn=bool(srcs) or is_cells_suite(suite))  # else the evidence: final windows only
     pub_curves = None
     if srcs and published is not None:
         pub_curves = A.learning_curves(A.same_pairs(A.select(published, metric, source=srcs), curves), metric,

@@ -19,7 +19,7 @@ from typing import Any
 from algorithms.update_modes import UPDATES
 from harness.catalogue import algorithm_name
 from harness.envs import ENVS, env_name
-from harness.words import ConfigError, boolean, did_you_mean, names, parse_words
+from harness.words import ConfigError, boolean, did_you_mean, key_word, names, parse_words
 from harness.words import integer as _int
 
 #: what a run can hold: one replay row per step (capacity <= 1e9), seeds as 31-bit integers
@@ -115,7 +115,7 @@ def parse_seeds(v: Any) -> list[int]:
             raise ConfigError(f"at most {MAX_SEEDS} seeds per run command, got {len(seeds)}")
         return seeds
     if str(v).strip() in ("0", "0.0"):
-        raise ConfigError("seeds=0 asks for no seeds (seeds=N is a count); for seed 0 alone write seeds=0, or seed=0")
+        raise ConfigError("seeds=0 asks for no seeds (seeds=N is a count); for seed 0 alone write seed=0 or seeds=[0]")
     try:
         return list(range(_int("seeds", v, 1, MAX_SEEDS)))
     except ConfigError as e:
@@ -200,7 +200,8 @@ class RunRequest:
         for w in words:  # name the unknown algorithm of an override, not just its scope
             if "=" not in w:
                 continue  # parse_words names it
-            scope = w.split("=", 1)[0].split(".", 1)[0] if "." in w.split("=", 1)[0] else None
+            k = key_word(w.split("=", 1)[0])  # MEDAL.lr, risc-no-tab.lr: as parse_words reads them
+            scope = k.split(".", 1)[0] if "." in k else None
             if scope is not None and scope != "all" and scope not in ALGORITHMS:
                 raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}{did_you_mean(scope, ALGORITHMS)}; "
                                   f"known: {', '.join(ALGORITHMS)}")
@@ -239,7 +240,8 @@ class RunRequest:
             suite=ov.get("suite"), algos=tuple(names("algo", [algorithm_name(a) for a in names(
                 "algo", ov.get("algos") or ov.get("algo") or [])])),
             envs=tuple(names("env", [env_name(e) for e in names("env", ov.get("envs") or ov.get("env") or [])])),
-            seeds=tuple(parse_seeds(ov["seeds"] if "seeds" in ov else f"{ov['seed']},")) if {"seed", "seeds"} & set(ov)
+            seeds=tuple(parse_seeds(ov["seeds"] if "seeds" in ov else [str(ov["seed"]).strip("[] ")]))
+            if {"seed", "seeds"} & set(ov)
             else None, steps=opt("steps"),
             eval_every=opt("eval_every"), eval_episodes=opt("eval_episodes"), checkpoint_every=opt("checkpoint_every"),
             keep_every=opt("keep_every"), log_every=opt("log_every"), members=opt("members"), workers=opt("workers"),

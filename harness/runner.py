@@ -152,8 +152,9 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     if scripted:
         from harness.data import find_data_dir
 
+        where = sorted({str(find_data_dir(f"demos/{e}/forward.npz")) for e in scripted})
         print(f"harness: note: the demonstrations of {', '.join(scripted)} are scripted (`harness data scripted`, in "
-              f"{find_data_dir()}), not EARL's; results record demo_source=scripted", file=sys.stderr)
+              f"{', '.join(where)}), not EARL's; results record demo_source=scripted", file=sys.stderr)
     for g in plan.groups:
         if g.steps <= int(g.config.get("seed_steps", 0)):
             print(f"harness: note: {g.env}/{g.algo}: steps={g.steps:,} is within seed_steps={g.config['seed_steps']:,}"
@@ -173,7 +174,8 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
     work = []
     for i in todo:  # (steps left per member, its effective rate: evaluations included)
         left = max((total[i] - done[i]) // len(plan.groups[i].seeds), 1)
-        work.append((left, left / calibration.group_seconds(plan.groups[i], left, rates[i], evals[i])))
+        seconds = calibration.group_seconds(plan.groups[i], left, rates[i], evals[i])  # 0: random steps only
+        work.append((left, left / max(seconds, 1e-9)))
     est = calibration.estimate(work, plan.workers)
     when = calibration.when_measured([plan.groups[i] for i in todo], threads)
     measured = all(evals[i] is not None for i in todo)

@@ -121,6 +121,13 @@ def test_dry_run_prints_plan(tmp_path, capsys):
     assert f"estimated time: {format_duration(calibration.estimate(work, plan.workers))} on" in out
     assert "(evaluations add ~3% where not measured;" in out
     assert not list(tmp_path.iterdir())
+    # a group within seed_steps whose evaluation cost is not on record: no update to time, nothing to divide by zero
+    words = ["run", "algo=naive", "env=sawyer_door", "steps=5000", f"results={tmp_path}"]
+    (g,) = plan_words(words[1:]).groups
+    (state_dir() / "calibration.json").write_text(json.dumps({**cache, calibration.key(g, threads): 100.0}))
+    assert main([*words, "--dry-run", "calibrate=false"]) == 0
+    assert "estimated time: 0m00s" in capsys.readouterr().out
+    (state_dir() / "calibration.json").write_text(json.dumps(cache))
     # short groups (the smoke suite's 400 steps) are not measured: that would take as long as running them
     assert main(["run", "suite=smoke", f"results={tmp_path}", "--dry-run"]) == 0
     out = capsys.readouterr().out
@@ -315,13 +322,14 @@ def test_names_and_step_counts_as_people_write_them():
             parse_int("n", bad)
 
 
+@requires_data
 def test_gnu_flags_dashes_short_names_and_seed_forms():
     """What people type from other tools: ``--steps 3000`` / ``--steps=3000`` (any key as a flag), dashes for
     underscores in keys and names, an env by a part of its name alone or its gymnasium id without namespace or version,
     ``steps=3,000`` as plans print it, ``seed=7`` for one seed, seed ranges and spaces; and the Python API takes the
     same env names as the command line."""
     from harness.cli import flag_words
-    from harness.envs import get_spec, make_env
+    from harness.envs import get_spec, load_env_demos, make_env
     from harness.request import RunRequest, parse_seeds
 
     words = flag_words(["run", "--algo", "medal-logc", "--env=door", "--eval-every", "1000", "--dry-run", "--steps",
@@ -338,6 +346,18 @@ def test_gnu_flags_dashes_short_names_and_seed_forms():
     assert [parse_seeds(v) for v in ("0-2", "0-1,7", "0 3", "[4]", "2")] == [[0, 1, 2], [0, 1, 7], [0, 3], [4], [0, 1]]
     assert get_spec("Sawyer_Door") is get_spec("earl/SawyerDoor-v0") is get_spec("door")
     assert make_env("SawyerDoor-v0").spec_.name == "sawyer_door"
+    assert len(load_env_demos("door").observations) == len(load_env_demos("sawyer_door").observations) > 0
+    # flags only after the command (and a bench/data command's own word), never a command or another flag as a value,
+    # negative numbers as values, nothing after a bare --
+    assert flag_words(["--foo", "list"]) == ["--foo", "list"]
+    assert flag_words(["bench", "--x", "train"]) == ["bench", "--x", "train"]
+    assert flag_words(["bench", "train", "--members", "2"]) == ["bench", "train", "members=2"]
+    assert flag_words(["run", "--medal.target-entropy", "-3", "--", "--x", "y"]) == \
+        ["run", "medal.target-entropy=-3", "--", "--x", "y"]
+    # an algorithm's override in any case or with dashes, as its name; seed=[7]
+    req = RunRequest.from_words(["algo=risc_no_tab,medal", "env=door", "RISC-NO-TAB.lr=0.001", "MEDAL.lr=0.002",
+                                 "seed=[7]"])
+    assert req.config == {"risc_no_tab": {"lr": "0.001"}, "medal": {"lr": "0.002"}} and req.seeds == (7,)
 
 
 def test_first_answers_without_argparse_words(capsys):
@@ -368,7 +388,8 @@ def test_first_answers_without_argparse_words(capsys):
         (["algo=medal", "env=sawyer_door", "steps=1.25k5"], "steps must be an integer"),
         (["algo=medal", "env=sawyer_door", "seeds=2,2"], "seeds must be distinct"),
         (["algo=medal", "env=sawyer_door", "seeds=[x]"], "seeds must be a count (seeds=3: seeds 0, 1, 2) or a list"),
-        (["algo=medal", "env=sawyer_door", "seeds=0"], "for seed 0 alone write seeds=0, or seed=0"),
+        (["algo=medal", "env=sawyer_door", "seeds=0"], "for seed 0 alone write seed=0 or seeds=[0]"),
+        (["algo=medal", "env=sawyer_door", "--best"], "unknown flag(s) --best (--best is not a flag of `harness run`)"),
         (["algo=medal", "env=sawyer_door", "seed=1", "seeds=2"], "give seed= or seeds=, not both"),
         (["colour=red", "algo=medal", "env=sawyer_door"], "unknown key 'colour'"),
         (["algo=nope", "env=sawyer_door"], "unknown algorithm"),
@@ -610,5 +631,25 @@ def test_a_suite_of_checks_is_reported_before_any_results_dir_exists(tmp_path, m
     monkeypatch.chdir(tmp_path)
     assert report_cli(["suite=earl_returns", f"out={tmp_path / 'out'}"]) == 0
     assert "not started" in (tmp_path / "out" / "reproduction.md").read_text()
+    assert "no results directory" not in capsys.readouterr().err  # the note says it, once
     with pytest.raises(ConfigError, match="results directory not found"):
         report_cli(["suite=smoke"])  # no checks to show: the results are needed
+
+
+def test_a_suite_file_names_envs_as_the_command_line_does(tmp_path, capsys):
+    """A suite's envs, its cells' env and a per-env steps mapping read names as `env=` does (any case, a gymnasium id,
+    a part of one name): the runs are planned under the registry name, with that env's own algorithm settings and
+    config hash, exactly as the same run asked on the command line."""
+    from harness.planning import plan_words
+
+    suite = tmp_path / "mixed_names.yaml"
+    suite.write_text("algos: [risc]\nenvs: [Kitchen, door]\nsteps: {KITCHEN: 1000, SawyerDoor-v0: 2000}\n")
+    g = {x.env: x for x in plan_words([f"suite={suite}", f"results={tmp_path}"]).groups}
+    adhoc = {x.env: x for x in plan_words(["algo=risc", "env=kitchen,sawyer_door", "steps=1000",
+                                            f"results={tmp_path}"]).groups}
+    assert set(g) == {"kitchen", "sawyer_door"} and (g["kitchen"].steps, g["sawyer_door"].steps) == (1000, 2000)
+    assert g["kitchen"].config == adhoc["kitchen"].config and g["kitchen"].config["phase_step_limit"] == 400
+    cells = tmp_path / "cells_names.yaml"
+    cells.write_text("cells:\n  - {algo: risc, env: Kitchen, steps: 1000}\n")
+    (c,) = plan_words([f"suite={cells}", f"results={tmp_path}"]).groups
+    assert c.env == "kitchen" and c.config == adhoc["kitchen"].config

@@ -96,3 +96,5 @@ def test_without_the_published_curves_one_warning_and_ours_alone(results, tmp_pa
     assert err.count("published curves not drawn") == 1, err
     assert (tmp_path / "out" / "curves.png").stat().st_size > 100
     assert (tmp_path / "out" / "table1_evidence.md").exists()
+    assert report_cli([f"results={results}", f"out={tmp_path / 'out2'}", "suite=fixture", "published=none"]) == 0
+    assert "published curves not drawn" not in capsys.readouterr().err  # none asked for: nothing to warn about

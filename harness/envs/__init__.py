@@ -96,6 +96,7 @@ def load_env_demos(name: str, direction: str = "forward") -> Demos:
     that has none (``EnvInfo.demos`` False: EARL ships no kitchen or minitaur demos), without looking for files."""
     from harness.data import empty_demos, load_demos  # the data module imports torch: not for the registry alone
 
+    name = env_name(name)
     info = env_info(name)
     if info.demos:
         return load_demos(name, direction)
@@ -106,6 +107,7 @@ def demos_record(name: str) -> dict[str, str | None]:
     """What ``run.yaml`` records of the demos of env ``name``: their directory and SHA-256, None for an env without."""
     from harness.data import demos_fingerprint
 
+    name = env_name(name)
     return demos_fingerprint(name) if env_info(name).demos else {"data_dir": None, "demos_sha256": None}
 
 
