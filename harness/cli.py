@@ -43,6 +43,9 @@ from harness.words import ConfigError
 FLAGS = ("--dry-run", "--best", "--data-dir", "--dest", "--base-url", "--help", "-h", "--version")
 
 
+BENCH_HELP = {"env": "raw env steps/s (MuJoCo, Meta-World, pybullet)", "train": "training steps/s of one group, with "
+              "the time split", "update": "one SAC update against its matmul ceiling", "matmul": "the update's "
+              "member-batched products: torch.bmm vs ours", "app": "dashboard page-load time"}
 #: commands whose next word names what to do (``harness bench train``, ``harness data fetch``)
 GROUPS = ("bench", "data")
 
@@ -121,7 +124,7 @@ class Parser(argparse.ArgumentParser):
         bad = re.fullmatch(r"argument (\w+): invalid choice: '(.*)' \(choose from (.*)\)", message)
         if bad:  # argparse's own words (its dest names, quoting) said as the command's
             known = [c.strip(" '") for c in bad[3].split(",")]
-            what = "command" if bad[1] == "cmd" else "choice"
+            what = {"cmd": "command", "what": "benchmark", "data_cmd": "data command"}.get(bad[1], "choice")
             message = f"unknown {what} {bad[2]!r}{did_you_mean(bad[2], known)}; known: {', '.join(known)}"
         print(f"harness: error: {message} (see `{self.prog} --help`)", file=sys.stderr)
         sys.exit(2)
@@ -205,11 +208,11 @@ def build_parser() -> argparse.ArgumentParser:
     d.set_defaults(fn=cmd_data)
 
     b = sub.add_parser("bench", help="benchmarks: env and training throughput, network products, dashboard page-load "
-                                      "time", formatter_class=raw,
-                       epilog="\n\n".join(f"harness bench {what}: " + keys_help(table, False)
-                                            for what, table in keys.BENCH.items()))
-    b.add_argument("what", choices=["env", "train", "update", "matmul", "app"])
-    b.add_argument("overrides", nargs="*")
+                                      "time")
+    bsub = b.add_subparsers(dest="what", required=True, parser_class=Parser)
+    for what, table in keys.BENCH.items():  # each with its own keys in its --help
+        one = bsub.add_parser(what, help=BENCH_HELP[what], epilog=keys_help(table, False), formatter_class=raw)
+        one.add_argument("overrides", nargs="*")
     b.set_defaults(fn=cmd_bench)
     return p
 

@@ -482,18 +482,24 @@ def test_logger_must_be_known(capsys):
 
 
 def test_every_command_lists_its_keys_in_its_help(capsys):
-    """``report``, ``ship``, ``bench`` and ``data scripted`` --help print each key they accept, with its default."""
+    """``report``, ``ship``, each ``bench`` and ``data scripted`` --help print each key they accept, with its default
+    (a bench its own keys only)."""
     from harness import command_keys as keys
 
-    bench = {k: v for table in keys.BENCH.values() for k, v in table.items()}
     for words, table in ((["report"], keys.REPORT), (["ship"], keys.SHIP), (["data", "scripted"], keys.SCRIPTED),
-                         (["bench"], bench)):
+                         *((["bench", what], t) for what, t in keys.BENCH.items())):
         with pytest.raises(SystemExit) as e:
             main([*words, "--help"])
         out = capsys.readouterr().out
         assert e.value.code == 0
         for key, (default, _) in table.items():
             assert re.search(rf"^  {key} +.*\[default: {re.escape(default)}\]$", out, re.M), (words, key)
+        if words[0] == "bench":
+            others = {k for t in keys.BENCH.values() for k in t} - set(table)
+            assert not [k for k in others if re.search(rf"^  {k} ", out, re.M)], words
+    with pytest.raises(SystemExit) as e:
+        main(["bench", "nope"])
+    assert e.value.code == 2 and capsys.readouterr().err.startswith("harness: error: unknown benchmark 'nope'; known: env,")
 
 
 
