@@ -247,3 +247,22 @@ def test_curves_of_sawyer_envs_open_on_success(monkeypatch, results):
     at = run_app(monkeypatch, results, "Learning curves")
     assert at.selectbox(key="curve_metric").value == "deployed_success"
     assert at.multiselect(key="sources").value == ["risc_paper"]
+
+
+def test_bench_app_waits_for_the_charts_of_the_default_suite(tmp_path):
+    """`harness bench app results=DIR` waits for as many learning-curve charts as the tab draws by default: one per
+    env of the most recently updated suite, not of every suite (the real results/ has several)."""
+    import os
+
+    from harness.bench.app import chart_count
+
+    for n, (suite, env) in enumerate([("old", "tabletop_manipulation"), ("old", "sawyer_door"), ("old", "sawyer_peg"),
+                                      ("new", "sawyer_peg")]):
+        d = tmp_path / suite / env / "medal" / "seed=0"
+        d.mkdir(parents=True)
+        (d / "evals.parquet").write_bytes(b"")
+        (d / "status.json").write_text("{}")
+        os.utime(d / "status.json", (1_000_000 + n, 1_000_000 + n))
+    assert chart_count(tmp_path) == 1
+    os.utime(tmp_path / "old" / "sawyer_door" / "medal" / "seed=0" / "status.json", (2_000_000, 2_000_000))
+    assert chart_count(tmp_path) == 3 and chart_count(tmp_path / "none") == 0

@@ -113,9 +113,15 @@ def chromium():
 
 
 def chart_count(results: Path) -> int:
-    """Charts the Learning curves tab draws by default: one per env with results (tuning trials left out)."""
-    return len({p.relative_to(results).parts[1] for p in Path(results).glob("*/*/*/seed=*/evals.parquet")
-                if p.relative_to(results).parts[0] != "tuning"})
+    """Charts the Learning curves tab draws by default: one per env of its default suite, the most recently updated
+    (the newest ``status.json``; tuning trials left out)."""
+    runs = [p.parent for p in Path(results).glob("*/*/*/seed=*/evals.parquet")
+            if p.relative_to(results).parts[0] != "tuning"]
+    if not runs:
+        return 0
+    age = {d: (d / "status.json").stat().st_mtime if (d / "status.json").exists() else 0.0 for d in runs}
+    suite = max(runs, key=age.get).relative_to(results).parts[0]
+    return len({d.relative_to(results).parts[1] for d in runs if d.relative_to(results).parts[0] == suite})
 
 
 def time_visit(context, url: str, charts: int, timeout_s: float = 120) -> tuple[float, float | None]:
