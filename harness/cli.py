@@ -90,21 +90,47 @@ def keys_help(table: dict[str, Any], algorithm_settings: bool = True) -> str:
         default, meaning = (v.default_text, v.help) if hasattr(v, "default_text") else v
         lines.append(f"  {k:<18} {meaning} [default: {default}]")
     if algorithm_settings:
-        from algorithms.common import SACAlgoConfig
-        from harness.registry import ALGORITHMS
-
-        lines += ["", "algorithm settings (<algo>.<key>=value, or all.<key>=value for every selected algorithm that "
-                      "has the key); defaults shown are the dataclass defaults, per-env values in "
-                      "suites/algorithms/<algo>.yaml:", "  SAC, shared by every SAC-based algorithm:"]
-        shared = {k for k, _, _ in SACAlgoConfig.describe()}
-        lines += [f"    {k:<24} {h} [default: {d}]" for k, d, h in SACAlgoConfig.describe()]
-        for name, cls in ALGORITHMS.items():
-            own = [(k, d, h) for k, d, h in cls.Config.describe()
-                   if k not in shared or d != getattr(SACAlgoConfig(), k, object())]
-            if own:
-                lines.append(f"  {name}:")
-                lines += [f"    {k:<24} {h} [default: {d}]" for k, d, h in own]
+        lines += ["", settings_help()]
     return "\n".join(lines)
+
+
+def settings_help() -> str:
+    """Every algorithm setting with its meaning and default (the shared SAC ones once, then each algorithm's own).
+    Reading them imports every algorithm and torch (seconds), so the text is kept in the state directory, keyed by
+    the source of algorithms/ and the registry: the next ``--help`` answers at once."""
+    import hashlib
+
+    from harness.catalogue import ROOT, algorithm_summaries
+    from harness.data import atomic_write_bytes, state_dir
+
+    sources = sorted((ROOT / "algorithms").rglob("*.py")) + [ROOT / "harness" / "registry.py"]
+    key = hashlib.sha256(b"".join(p.read_bytes() for p in sources)).hexdigest()[:16]
+    cached = state_dir() / f"settings_help-{key}.txt"
+    if cached.is_file():
+        return cached.read_text()
+    from algorithms.common import SACAlgoConfig
+    from harness.registry import ALGORITHMS
+
+    lines = ["algorithm settings (<algo>.<key>=value, or all.<key>=value for every selected algorithm that has the key);"
+             " defaults shown are the dataclass defaults, per-env values in suites/algorithms/<algo>.yaml:",
+             "  SAC, shared by every SAC-based algorithm:"]
+    shared = {k for k, _, _ in SACAlgoConfig.describe()}
+    lines += [f"    {k:<24} {h} [default: {d}]" for k, d, h in SACAlgoConfig.describe()]
+    for name, cls in ALGORITHMS.items():
+        own = [(k, d, h) for k, d, h in cls.Config.describe()
+               if k not in shared or d != getattr(SACAlgoConfig(), k, object())]
+        if own:
+            lines.append(f"  {name}:")
+            lines += [f"    {k:<24} {h} [default: {d}]" for k, d, h in own]
+    text = "\n".join(lines)
+    if tuple(ALGORITHMS) == tuple(algorithm_summaries()):  # the registry as its source says: no run-time addition
+        try:
+            for old in state_dir().glob("settings_help-*.txt"):
+                old.unlink(missing_ok=True)
+            atomic_write_bytes(cached, text.encode())
+        except OSError:
+            pass  # a read-only state directory: computed each time
+    return text
 
 
 class Parser(argparse.ArgumentParser):

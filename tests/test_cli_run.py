@@ -659,3 +659,20 @@ def test_a_suite_file_names_envs_as_the_command_line_does(tmp_path, capsys):
     cells.write_text("cells:\n  - {algo: risc, env: Kitchen, steps: 1000}\n")
     (c,) = plan_words([f"suite={cells}", f"results={tmp_path}"]).groups
     assert c.env == "kitchen" and c.config == adhoc["kitchen"].config
+
+
+def test_run_help_lists_the_settings_and_answers_at_once_the_next_time(capsys):
+    """`harness run --help` lists every algorithm's settings (which imports every algorithm and torch: seconds); the
+    text is kept per source of algorithms/, so the next `--help` prints the same without importing torch."""
+    from harness.data import state_dir
+
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    first = capsys.readouterr().out
+    assert "medal.switch_every" not in first and "  medal:" in first and "    disc_mixup" in first
+    assert len(list(state_dir().glob("settings_help-*.txt"))) == 1
+    code = ("import contextlib, io, sys\nfrom harness.cli import main\nbuf = io.StringIO()\n"
+            "with contextlib.redirect_stdout(buf):\n    try:\n        main(['run', '--help'])\n    except SystemExit:\n"
+            "        pass\nprint(buf.getvalue() + repr('torch' in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.rstrip().endswith("False") and out[: len(first)] == first
