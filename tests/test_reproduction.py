@@ -21,7 +21,7 @@ from harness.synthetic import write_run
 
 from .conftest import requires_data
 
-SUITES = ("reproduction", "vaprl_ablation", "table1", "earl_returns", "peg_oracle_diagnosis")
+SUITES = ("reproduction", "vaprl_ablation", "table1", "earl_returns", "peg_oracle_diagnosis", "naive_tabletop_diagnosis")
 
 
 def _curves(values: dict[int, list[float]], start: int = 10_000, every: int = 10_000) -> pd.DataFrame:
@@ -106,7 +106,8 @@ def test_suite_published_numbers_match_the_published_curves(suite):
             n += 1
     # checks: the ladder has 9 cells (vaprl tabletop: two windows), the ablation 22 cells (two of them: two windows),
     # the peg diagnosis 3 cells of two windows
-    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12, "earl_returns": 3, "peg_oracle_diagnosis": 6}[suite]
+    assert n == {"reproduction": 10, "vaprl_ablation": 24, "table1": 12, "earl_returns": 3, "peg_oracle_diagnosis": 6,
+                 "naive_tabletop_diagnosis": 2}[suite]
 
 
 @requires_data
