@@ -13,6 +13,7 @@ here; its data, charts and tabs live in ``harness/dashboard/``.
 
 from __future__ import annotations
 
+import os
 import time
 from pathlib import Path
 
@@ -47,7 +48,7 @@ def main() -> None:
         st.session_state["results_dir"] = default_results()
     with st.sidebar:
         st.header("Results")
-        root = st.text_input("results directory", key="results_dir").strip() or "results"
+        root = os.path.expanduser(st.text_input("results directory", key="results_dir").strip() or "results")
         if st.button("Refresh"):
             st.rerun()
         auto = st.checkbox("auto-refresh every 30 s", value=False, key="auto_refresh")

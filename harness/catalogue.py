@@ -64,3 +64,16 @@ def _summaries() -> tuple[tuple[str, tuple[str, str]], ...]:
                       and any(isinstance(t, ast.Name) and t.id == "label" for t in n.targets)), "")
         out[key.value] = ((ast.get_docstring(node) or "").strip().splitlines()[0], label)
     return tuple(out.items())
+
+
+@lru_cache(maxsize=1)
+def algorithm_setting_names() -> frozenset[str]:
+    """Every key an algorithm's config declares (the fields of the ``...Config`` and ``...Fields`` dataclasses under
+    ``algorithms/``), read from the source: a command-line word that names one without its ``<algo>.`` scope is told
+    how to give it, before torch loads."""
+    names: set[str] = set()
+    for source in sorted((ROOT / "algorithms").rglob("*.py")):
+        for node in ast.walk(ast.parse(source.read_text())):
+            if isinstance(node, ast.ClassDef) and node.name.endswith(("Config", "Fields")):
+                names |= {n.target.id for n in node.body if isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name)}
+    return frozenset(names)

@@ -59,6 +59,16 @@ class RunSpec:
         return {"config_hash": self.config_hash, "git_sha": self.git_sha, "demo_source": self.demo_source,
                 "device": self.device, "study": self.study, "trial": self.trial}
 
+    def seed_phase_note(self) -> str | None:
+        """The warning for a budget within the method's seed phase (random actions before the first update): such a
+        run never updates its networks. None when the budget goes past it."""
+        seed_steps = int(self.config.get("seed_steps", 0))
+        if self.steps > seed_steps:
+            return None
+        return (f"{self.env}/{self.algo}: steps={self.steps:,} is within seed_steps={seed_steps:,} (random actions "
+                f"before the first update): these runs never update their networks; raise steps= or lower "
+                f"{self.algo_class}.seed_steps=")
+
     def member_dirs(self) -> list[Path]:
         return [run_dir(Path(self.results), self.suite, self.env, self.algo, s) for s in self.seeds]
 

@@ -235,11 +235,31 @@ def build_plan(req: RunRequest) -> Plan:
                    for n, i in enumerate(range(0, len(u.seeds), members))]
     if req.update is None:
         groups = [replace(g, update=resumed_update(g)) for g in groups]
-    plan = Plan(suite_name, run_order(groups), workers=packing.workers, backend=req.backend,
+    workers, reasons = packing.workers, packing.reasons
+    runtime = runtime_entries(groups)
+    if runtime and (workers > 1 or req.backend == "ray"):
+        if req.workers not in (None, 1) or req.backend == "ray":
+            raise ConfigError(f"{', '.join(runtime)} registered at run time in this process: worker processes import "
+                              "the registries from their source and would not see it; run with workers=1 (backend=local),"
+                              " or register it in harness/registry.py / harness/envs/__init__.py")
+        workers, reasons = 1, (*reasons, f"workers=1: {', '.join(runtime)} registered at run time in this process, "
+                                          "which spawned worker processes would not see")
+    plan = Plan(suite_name, run_order(groups), workers=workers, backend=req.backend,
                 ray_address=req.ray_address, calibrate=req.calibrate, machine=machine.describe(),
-                packing=packing.reasons, per_device=packing.per_device, left_out=tuple(left_out))
+                packing=reasons, per_device=packing.per_device, left_out=tuple(left_out))
     check_results_dirs(plan)
     return plan
+
+
+def runtime_entries(groups: list[RunSpec]) -> list[str]:
+    """The algorithms and envs of ``groups`` that were added to (or replaced in) the registries at run time, which
+    only this process holds: ``algorithm 'x'``, ``env 'y'``."""
+    from harness.envs import BUILT_IN_ENVS, ENVS
+    from harness.registry import ALGORITHMS, BUILT_IN
+
+    algos = sorted({g.algo_class for g in groups if BUILT_IN.get(g.algo_class) is not ALGORITHMS.get(g.algo_class)})
+    envs = sorted({g.env for g in groups if BUILT_IN_ENVS.get(g.env) is not ENVS.get(g.env)})
+    return [f"algorithm {a!r}" for a in algos] + [f"env {e!r}" for e in envs]
 
 
 def plan_words(words: list[str]) -> Plan:
@@ -301,10 +321,9 @@ def check_results_dirs(plan: Plan) -> None:
                               f"{', '.join(sorted(set(g.config) - set(old['config'])))} since this run started; "
                               "resuming it under the new code", file=sys.stderr)
                     continue
-                raise ConfigError(
-                    f"{p.parent} holds a run with another config ({config_changes(old, g)}); choose another results= "
-                    "directory or suite name, or give the run's own values to resume it"
-                )
+                other = "another results= directory" + (" or suite" if g.suite != "adhoc" else "")
+                raise ConfigError(f"{p.parent} holds a run with another config ({config_changes(old, g)}); choose "
+                                  f"{other}, or give the run's own values to resume it")
 
 
 def config_changes(old: dict[str, Any], g: RunSpec, most: int = 4) -> str:

@@ -34,3 +34,6 @@ ALGORITHMS: dict[str, type[Algorithm]] = {
     "risc": RISC,
     "risc_no_tab": RISCNoTAB,
 }
+#: the registry as its source builds it: what a spawned worker process (or a Ray task) imports. An entry added or
+#: replaced at run time (a notebook, a script) lives in this process only (``harness.planning.runtime_entries``).
+BUILT_IN: dict[str, type[Algorithm]] = dict(ALGORITHMS)

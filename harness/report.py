@@ -35,7 +35,7 @@ from harness.command_keys import CURVE_METRICS, PUBLISHED_SOURCES
 from harness.command_keys import REPORT as REPORT_KEYS
 from harness.evidence import evidence_markdown, table1_evidence
 from harness.labels import algo_label, env_label, method_colors, order_algos, order_envs
-from harness.stats import aggregate_scores
+from harness.stats import aggregate_scores, no_shared_env
 from harness.suites import ConfigError, list_suites, load_suite
 from harness.tables import table1, table1_csv, table1_latex, table1_markdown
 from harness.words import integer as parse_int
@@ -277,6 +277,10 @@ def report_cli(overrides: list[str]) -> int:
 
     scores = A.final_scores(df, step=step)
     agg = aggregate_scores(scores)
+    if agg.empty and len(scores):
+        print("harness report: note: aggregates.csv has no rows: the aggregates compare methods over the envs they all "
+              f"share, and no env has results of every method ({no_shared_env(scores, scores['algo'].unique())})",
+              file=sys.stderr)
     agg.to_csv(out / "aggregates.csv", index=False)
     written.append(out / "aggregates.csv")
     if is_cells_suite(suite):

@@ -170,7 +170,7 @@ def load(path: str | Path, warn=None, filename: str = EVALS_FILE) -> pd.DataFram
     :data:`TRAIN_FILE` reads the training diagnostics instead of the evaluations."""
     warn = warn or (lambda msg: print(msg, file=sys.stderr))
     tables = []
-    root = Path(path)
+    root = Path(path).expanduser()
     if not root.exists():  # a mistyped path is not "no results yet"
         warn(f"no results directory {root} (from {Path.cwd()}): nothing loaded")
     files = [root] if root.is_file() else sorted(root.rglob(filename))

@@ -155,11 +155,8 @@ def print_plan(plan: Plan, calibrate: bool | str = False) -> None:
         where = sorted({str(find_data_dir(f"demos/{e}/forward.npz")) for e in scripted})
         print(f"harness: note: the demonstrations of {', '.join(scripted)} are scripted (`harness data scripted`, in "
               f"{', '.join(where)}), not EARL's; results record demo_source=scripted", file=sys.stderr)
-    for g in plan.groups:
-        if g.steps <= int(g.config.get("seed_steps", 0)):
-            print(f"harness: note: {g.env}/{g.algo}: steps={g.steps:,} is within seed_steps={g.config['seed_steps']:,}"
-                  f" (random actions before the first update): these runs never update their networks; raise steps= "
-                  f"or lower {g.algo}.seed_steps=", file=sys.stderr)
+    for note in filter(None, (g.seed_phase_note() for g in plan.groups)):
+        print(f"harness: note: {note}", file=sys.stderr)
     unmeasured = (f" (+ {len(short)} short group(s) of at most {calibration.SHORT_STEPS:,} steps per seed, not measured:"
                   " measuring one takes about as long as running it)") if short else ""
     if not todo and short:

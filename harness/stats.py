@@ -22,7 +22,7 @@ from typing import Callable, Iterable, Sequence
 import numpy as np
 import pandas as pd
 
-from harness.labels import order_algos, order_envs
+from harness.labels import algo_label, order_algos, order_envs
 
 
 def standard_error(x: np.ndarray, axis: int = -1, ddof: int = 1) -> np.ndarray:
@@ -136,6 +136,15 @@ def common_envs(scores: pd.DataFrame, algos: Iterable[str]) -> list[str]:
     have = [set(scores.loc[scores["algo"] == a, "env"]) for a in algos]
     inter = set.intersection(*have) if have else set()
     return order_envs(inter)
+
+
+def no_shared_env(scores: pd.DataFrame, algos: Iterable[str]) -> str:
+    """Why no env is shared by every one of ``algos``: per env with results, the chosen methods it lacks
+    (``point: lacks FBRL, MEDAL``)."""
+    algos = list(algos)
+    lacking = {e: [a for a in algos if not ((scores["env"] == e) & (scores["algo"] == a)).any()]
+               for e in order_envs(set(scores["env"]))}
+    return "; ".join(f"{e}: lacks {', '.join(algo_label(a) for a in lack)}" for e, lack in lacking.items() if lack)
 
 
 def aggregate_scores(

@@ -9,6 +9,7 @@ setting), refusing a word without ``=``, an empty or unknown key, and a key give
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Collection, Iterable
 from typing import Any
 
@@ -20,6 +21,10 @@ class ConfigError(ValueError):
 
 
 UsageError = ConfigError  # the name the command-line code uses
+
+
+#: keys whose value is a path: a leading ``~`` means the home directory, as the shell would expand it
+PATH_KEYS = frozenset({"results", "to", "out", "doc", "dest", "record", "search", "data_dir"})
 
 
 def parse_words(words: list[str], allowed: Collection[str] | None = None, *,
@@ -39,6 +44,8 @@ def parse_words(words: list[str], allowed: Collection[str] | None = None, *,
         if k in seen:
             raise ConfigError(f"{k} is given twice ({w!r}); give each key once")
         seen.add(k)
+        if k in PATH_KEYS:
+            v = os.path.expanduser(v)  # results=~/runs: a quoted word, zsh, a notebook or run_cli([...]) keeps the ~
         if scope is not None and "." in k:
             s, key = k.split(".", 1)
             if not scope(s):

@@ -15,7 +15,14 @@ from harness import analysis as A
 from harness.labels import method_color
 from harness.results import STATUS_FILE, load, parse_run_dir, read_status, run_dir
 from harness.run_status import format_duration, run_status, status_counts
-from harness.stats import aggregate_scores, bootstrap_mean_ci, iqm, probability_of_improvement, stratified_bootstrap
+from harness.stats import (
+    aggregate_scores,
+    bootstrap_mean_ci,
+    iqm,
+    no_shared_env,
+    probability_of_improvement,
+    stratified_bootstrap,
+)
 from harness.tables import PUBLISHED_TABLE1, table1, table1_csv, table1_latex, table1_markdown
 from tests import fixtures_results as F
 
@@ -86,6 +93,14 @@ def test_aggregate_scores_fixture(df):
         assert agg.loc[algo, "mean"] == pytest.approx(pooled.mean())
         assert agg.loc[algo, "iqm_lo"] <= agg.loc[algo, "iqm"] <= agg.loc[algo, "iqm_hi"]
         assert agg.loc[algo, "n_envs"] == 2 and agg.loc[algo, "n_runs"] == 6
+
+
+def test_without_a_shared_env_the_aggregates_say_which_methods_each_env_lacks():
+    scores = pd.DataFrame({"env": ["sawyer_door", "sawyer_door", "sawyer_peg"], "algo": ["medal", "naive", "fbrl"],
+                           "seed": [0, 0, 0], "score": [1.0, 0.0, 0.5]})
+    assert aggregate_scores(scores, reps=10).empty
+    assert no_shared_env(scores, ["naive", "medal", "fbrl"]) == \
+        "sawyer_door: lacks FBRL; sawyer_peg: lacks naive RL, MEDAL"
 
 
 # ---------------------------------------------------------------------------- curves

@@ -9,6 +9,7 @@ import subprocess
 import sys
 import time
 from datetime import datetime, timezone
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -358,6 +359,32 @@ def test_gnu_flags_dashes_short_names_and_seed_forms():
     req = RunRequest.from_words(["algo=risc_no_tab,medal", "env=door", "RISC-NO-TAB.lr=0.001", "MEDAL.lr=0.002",
                                  "seed=[7]"])
     assert req.config == {"risc_no_tab": {"lr": "0.001"}, "medal": {"lr": "0.002"}} and req.seeds == (7,)
+    # a path word keeps its ~ where no shell expands it (a quoted word, zsh, a notebook): the home directory
+    assert RunRequest.from_words(["algo=naive", "env=door", "results=~/r"]).results == str(Path.home() / "r")
+
+
+@requires_data
+def test_an_algorithm_registered_at_run_time_runs_in_this_process(monkeypatch):
+    """Spawned workers import the registries from their source: a method added in a notebook or script is planned in
+    one process (a packing reason says why), and an explicit workers=2 or Ray is refused with one line."""
+    from harness.planning import build_plan
+    from harness.request import RunRequest
+
+    class MyNaive(ALGORITHMS["naive"]):
+        pass
+
+    monkeypatch.setitem(ALGORITHMS, "my_naive", MyNaive)
+    words = ["algo=my_naive", "env=door", "seeds=2", "steps=100", "eval_every=100"]
+    plan = build_plan(RunRequest.from_words(words))
+    assert plan.workers == 1 and {g.algo for g in plan.groups} == {"my_naive"}
+    assert any("registered at run time" in r for r in plan.packing) or len(plan.groups) == 1
+    for extra in (["workers=2"], ["backend=ray"]):
+        with pytest.raises(Exception, match="algorithm 'my_naive' registered at run time in this process"):
+            build_plan(RunRequest.from_words(words + extra))
+    # a built-in replaced at run time is just as invisible to the workers
+    monkeypatch.setitem(ALGORITHMS, "naive", MyNaive)
+    with pytest.raises(Exception, match="algorithm 'naive' registered at run time"):
+        build_plan(RunRequest.from_words(["algo=naive", "env=door", "seeds=2", "steps=100", "workers=2"]))
 
 
 def test_first_answers_without_argparse_words(capsys):
@@ -398,6 +425,9 @@ def test_first_answers_without_argparse_words(capsys):
         (["algo=medal", "env=sawyer_dor"], "unknown env 'sawyer_dor' (did you mean sawyer_door?)"),
         (["algo=medal", "env=sawyer"], "unknown env 'sawyer'"),  # a part of two names: neither
         (["algo=medal", "env=sawyer_door", "stepz=3"], "unknown key 'stepz' (did you mean steps?)"),
+        (["algo=naive", "env=sawyer_door", "seed_steps=5"],
+         "seed_steps is an algorithm setting: give it as all.seed_steps=5 (every algorithm that has it) or "
+         "<algo>.seed_steps=5"),
         (["suite=nope"], "unknown suite 'nope'"),
         (["suite=tabel1"], "unknown suite 'tabel1' (did you mean table1?)"),
         (["algo=medal", "env=sawyer_door", "seeds=-1"], "seeds must be >= 0"),

@@ -44,6 +44,11 @@ def test_not_found_is_one_clear_line(tmp_path, monkeypatch):
         find_data_dir("demos")
     msg = str(e.value)
     assert "\n" not in msg and "harness data fetch" in msg and "HARNESS_DATA_DIR" in msg and "cache" in msg
+    # the published curves are not among what `harness data fetch` brings: the line says so, and how to go on
+    with pytest.raises(DataNotFoundError) as e:
+        find_data_dir("reference/published_curves.csv.gz")
+    msg = str(e.value)
+    assert "\n" not in msg and "not something `harness data fetch` downloads" in msg and "published=none" in msg
     # an explicit directory is the only place searched: no silent fallback to the others
     for explicit in (tmp_path / "missing", tmp_path):
         with pytest.raises(DataNotFoundError) as e:

@@ -139,6 +139,21 @@ class RandomPolicy(Algorithm):
         load_rng_states(self.rngs, state["rngs"])
 
 
+# -------------------------------------------------------------------------- a variant: algorithms/naive_shaped.py
+
+
+from algorithms.naive import Naive  # noqa: E402
+
+
+class NaiveShaped(Naive):
+    """Naive RL on 1[success] minus the distance to the goal (on the env's success coordinates)."""
+
+    label = "naive RL, shaped"
+
+    def reward(self, batch):  # batch["next_obs"]: (E, B, obs_dim), each row [state, goal]
+        return batch["reward"] - self.task.goal_distance(batch["next_obs"])
+
+
 # -------------------------------------------------------------------------- registering them, and running
 
 
@@ -190,3 +205,25 @@ def test_without_demos_a_new_env_says_where_they_come_from(registered, tmp_path,
                  f"results={tmp_path / 'r'}"]) == 2
     err = capsys.readouterr().err
     assert "harness data scripted env=toy_point" in err and len(err.strip().splitlines()) == 1
+
+
+def test_a_variant_overrides_one_hook_and_runs(registered, monkeypatch, tmp_path, capsys):
+    """docs/extending.md's variant: the shaped reward is what the agent learns from (hand-computed on a batch), and
+    the real protocol runs it past its seed phase."""
+    import torch
+
+    monkeypatch.setitem(ALGORITHMS, "naive_shaped", NaiveShaped)
+    data, results = tmp_path / "data", tmp_path / "results"
+    assert main(["data", "scripted", "env=toy_point", f"out={data}"]) == 0
+    args = ["--data-dir", str(data), "run", "algo=naive_shaped", "env=toy_point", "seed=0", "steps=200",
+            "eval_every=100", "eval_episodes=1", "naive_shaped.seed_steps=50", "naive_shaped.batch_size=8",
+            "workers=1", f"results={results}"]
+    assert main(args) == 0, capsys.readouterr().err
+    train = load(results, filename="train.parquet")
+    assert set(train.algo) == {"naive_shaped"} and len(train)
+    spec = get_spec("toy_point")
+    next_obs = torch.tensor([[[0.5, 1.0], [1.0, 1.0]]])  # [x, goal]: 0.5 away, and at the goal
+    algo = NaiveShaped.__new__(NaiveShaped)
+    algo.task = spec
+    shaped = algo.reward({"reward": torch.tensor([[0.0, 1.0]]), "next_obs": next_obs})
+    assert torch.allclose(shaped, torch.tensor([[-0.5, 1.0]]))

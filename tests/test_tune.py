@@ -119,6 +119,13 @@ def test_journal_study_killed_and_resumed(tmp_path):
     for n in (0, 1, 3):
         assert sorted(d[d.trial == n].step) == [0, 100, 200, 300], n  # no row lost or duplicated by the kill
 
+    # the study goes on only under the settings its trials were scored with; a change is named, nothing is run
+    changed = [a for a in TINY if not a.startswith("steps=")] + ["steps=200", "trials=4", "study=j", f"results={tmp_path}"]
+    p = harness("tune", *changed)
+    out, _ = p.communicate(timeout=120)
+    assert p.returncode == 2 and out.strip().count("\n") == 0 and "(steps 300 -> 200)" in out, out
+    assert len(journal_study(journal, "j").trials) == len(study.trials)
+
     best = finished("tune", "algo=medal", "env=tabletop_manipulation", "study=j", f"results={tmp_path}", "--best")
     cfg = yaml.safe_load(best)["config"]
     assert set(cfg["medal"]) == set(load_search_space("medal")) and cfg["all"] == {"seed_steps": 100, "batch_size": 32}

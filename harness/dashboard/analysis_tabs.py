@@ -10,7 +10,7 @@ from harness.dashboard.charts import curves_grid
 from harness.dashboard.data import Sel, aggregates_for, curves_for, filtered, load_diagnostics, scores_for
 from harness.dashboard.results_tabs import step_option
 from harness.labels import ABLATIONS, algo_label, env_label, order_algos, order_envs
-from harness.stats import common_envs, probability_of_improvement, scores_by_task
+from harness.stats import common_envs, no_shared_env, probability_of_improvement, scores_by_task
 from harness.tables import EARLY, TABLE1_BUDGET, short_steps
 
 
@@ -24,8 +24,12 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
     have = order_algos(scores["algo"].unique())
     chosen = st.multiselect("methods", have, default=have, format_func=algo_label, key="agg_algos")
     shared = common_envs(scores, chosen) if chosen else []
-    if not chosen or not shared:
-        st.info("Choose methods that share at least one env.")
+    if not chosen:
+        st.info("Choose at least one method.")
+        return
+    if not shared:
+        st.info(f"No env has results of every chosen method ({no_shared_env(scores, chosen)}): leave out a method, "
+                "or choose fewer envs in the sidebar.")
         return
     left_out = sorted(set(scores["env"]) - set(shared))
     agg = aggregates_for(root, sig, sel._replace(envs=tuple(shared), algos=tuple(chosen)), step, last_k, 2000)

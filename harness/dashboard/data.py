@@ -34,7 +34,7 @@ def default_results() -> str:
     p = argparse.ArgumentParser(add_help=False)
     p.add_argument("--results")
     args, _ = p.parse_known_args(sys.argv[1:])
-    return args.results or os.environ.get("HARNESS_RESULTS") or "results"
+    return os.path.expanduser(args.results or os.environ.get("HARNESS_RESULTS") or "results")
 
 
 def signature(root: str) -> tuple[int, float]:

@@ -42,6 +42,9 @@ UNAVAILABLE_ENVS: dict[str, str] = {
     "dhand_lightbulb": "not available: EARL never released it",
 }
 
+#: the env registry as its source builds it: what a spawned worker process imports (see ``harness.registry.BUILT_IN``)
+BUILT_IN_ENVS: dict[str, EnvInfo] = dict(ENVS)
+
 #: derived views of ``ENVS`` as imported (code that must follow a registry changed at run time reads ``ENVS``)
 GYM_IDS = {name: info.spec.gym_id for name, info in ENVS.items()}
 EVAL_HORIZONS = {name: info.spec.eval_horizon for name, info in ENVS.items()}

@@ -77,6 +77,8 @@ def tune_cli(words: list[str], best: bool = False) -> int:
     if best:
         print(best_yaml(open_study(setup, create=False), setup), end="")
         return 0
+    if setup["seed_note"]:
+        print(f"harness: note: {setup['seed_note']}", file=sys.stderr)
     storage = make_storage(setup)
     study = open_study(setup, create=True, storage=storage)
     fail_dead_local_trials(study, storage)

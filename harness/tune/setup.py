@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 from dataclasses import replace
@@ -170,7 +171,12 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
                   for k, s in space.items()}
         plan = build_plan(trial_request(base, algo, params, probe))
     g = plan.groups[0]
-    setup.update(request=base, fixed_config=fixed_config, steps=g.steps, eval_every=g.eval_every)
+    setup.update(request=base, fixed_config=fixed_config, steps=g.steps, eval_every=g.eval_every,
+                 seed_note=g.seed_phase_note())
+    # what makes one trial's score comparable with another's: a study keeps it and refuses to go on under another
+    setup["protocol"] = json.loads(json.dumps(  # as a study keeps it (JSON): lists, not tuples
+        {"steps": g.steps, "eval_every": g.eval_every, "eval_episodes": g.eval_episodes, "seeds": list(g.seeds),
+         "fixed_config": fixed_config, "space": space}))
     setup["command"] = " ".join(["harness", "tune", *map(shlex.quote, words)])
     return setup
 

@@ -106,7 +106,22 @@ def open_study(setup: dict[str, Any], create: bool, storage=None):
         study.set_user_attr("algo", setup["algo"])
         study.set_user_attr("env", setup["env"])
         study.set_user_attr("fixed_config", setup["fixed_config"])
+    if create and "protocol" in setup:
+        if "protocol" in ident:
+            check_protocol(setup["study"], ident["protocol"], setup["protocol"])
+        else:  # a new study, or one from before the protocol was kept: it keeps this one from now on
+            study.set_user_attr("protocol", setup["protocol"])
     return study
+
+
+def check_protocol(study: str, kept: dict[str, Any], given: dict[str, Any]) -> None:
+    """Refuse to go on with a study under another budget, evaluation, seeds, fixed settings or search space than its
+    trials were scored with (their scores would not be comparable), naming what changed."""
+    changed = [f"{k} {kept.get(k)!r} -> {given[k]!r}" if k in ("fixed_config", "space")
+               else f"{k} {kept.get(k)} -> {given[k]}" for k in given if kept.get(k) != given[k]]
+    if changed:
+        raise ConfigError(f"study {study!r} was run with other settings ({'; '.join(changed)}): its trials would not "
+                          "be comparable; give the study's settings again, or choose another study=")
 
 
 def finished(study) -> int:
