@@ -75,5 +75,19 @@ def algorithm_setting_names() -> frozenset[str]:
     for source in sorted((ROOT / "algorithms").rglob("*.py")):
         for node in ast.walk(ast.parse(source.read_text())):
             if isinstance(node, ast.ClassDef) and node.name.endswith(("Config", "Fields")):
-                names |= {n.target.id for n in node.body if isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name)}
+                names |= {n.target.id for n in node.body if isinstance(n, ast.AnnAssign)
+                          and isinstance(n.target, ast.Name) and "ClassVar" not in ast.unparse(n.annotation)}
     return frozenset(names)
+
+
+def check_unscoped_settings(words: list[str], command_keys) -> None:
+    """Name the form of an algorithm setting given without its scope (``seed_steps=5``, for ``harness run`` or
+    ``tune``), rather than calling it an unknown key: one :class:`~harness.words.ConfigError` line."""
+    from harness.words import ConfigError, key_word
+
+    for w in words:
+        k, _, v = w.partition("=")
+        k = key_word(k)
+        if "." not in k and k not in command_keys and k in algorithm_setting_names():
+            raise ConfigError(f"{k} is an algorithm setting: give it as all.{k}={v} (every algorithm that has it) "
+                              f"or <algo>.{k}={v} (one algorithm)")

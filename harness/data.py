@@ -92,11 +92,6 @@ def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None
     for _, d in cands:
         if (d / need).exists():
             return d
-    if len(cands) == 1:
-        label, d = cands[0]
-        what = "does not exist" if not d.exists() else f"has no '{need}'"
-        raise DataNotFoundError(f"the EARL data directory given by {label} ({d}) {what}. Fix: point {label} at a "
-                                "directory made by `harness data fetch` (demos/, assets/, reference/), or unset it")
     looked = ", ".join(f"{label} ({d})" for label, d in cands)
     if need.startswith("reference"):  # not among what `harness data fetch` downloads
         raise DataNotFoundError(
@@ -104,6 +99,11 @@ def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None
             "(EARL's released evaluations and the RISC paper's curves, one CSV), not something `harness data fetch` "
             "downloads: put the file under reference/ of a data directory (HARNESS_DATA_DIR / --data-dir), or go on "
             "without them (published=none)")
+    if len(cands) == 1:
+        label, d = cands[0]
+        what = "does not exist" if not d.exists() else f"has no '{need}'"
+        raise DataNotFoundError(f"the EARL data directory given by {label} ({d}) {what}. Fix: point {label} at a "
+                                "directory made by `harness data fetch` (demos/, assets/), or unset it")
     raise DataNotFoundError(
         f"EARL data '{need}' not found; looked in {looked}. "
         "Fix: run `harness data fetch` (offline: `harness data scripted`), or set HARNESS_DATA_DIR / --data-dir to an "

@@ -236,14 +236,13 @@ def build_plan(req: RunRequest) -> Plan:
     if req.update is None:
         groups = [replace(g, update=resumed_update(g)) for g in groups]
     workers, reasons = packing.workers, packing.reasons
-    runtime = runtime_entries(groups)
-    if runtime and (workers > 1 or req.backend == "ray"):
-        if req.workers not in (None, 1) or req.backend == "ray":
-            raise ConfigError(f"{', '.join(runtime)} registered at run time in this process: worker processes import "
-                              "the registries from their source and would not see it; run with workers=1 (backend=local),"
-                              " or register it in harness/registry.py / harness/envs/__init__.py")
-        workers, reasons = 1, (*reasons, f"workers=1: {', '.join(runtime)} registered at run time in this process, "
-                                          "which spawned worker processes would not see")
+    unseen = unseen_by_workers(groups, req.backend)
+    if unseen and (workers > 1 or packing.env_workers or req.backend == "ray"):
+        if req.backend == "ray" or req.workers not in (None, 1) or req.env_workers:
+            raise ConfigError(f"{unseen}; run with workers=1 env_workers=0 (backend=local), or register it in "
+                              "harness/registry.py / harness/envs/__init__.py")
+        workers, groups = 1, [replace(g, env_workers=0) for g in groups]
+        reasons = (*reasons, f"workers=1, env_workers=0: {unseen}")
     plan = Plan(suite_name, run_order(groups), workers=workers, backend=req.backend,
                 ray_address=req.ray_address, calibrate=req.calibrate, machine=machine.describe(),
                 packing=reasons, per_device=packing.per_device, left_out=tuple(left_out))
@@ -252,14 +251,28 @@ def build_plan(req: RunRequest) -> Plan:
 
 
 def runtime_entries(groups: list[RunSpec]) -> list[str]:
-    """The algorithms and envs of ``groups`` that were added to (or replaced in) the registries at run time, which
-    only this process holds: ``algorithm 'x'``, ``env 'y'``."""
+    """The algorithms and envs of ``groups`` that were added to (or replaced in) the registries at run time, outside
+    their source: ``algorithm 'x'``, ``env 'y'``."""
     from harness.envs import BUILT_IN_ENVS, ENVS
     from harness.registry import ALGORITHMS, BUILT_IN
 
     algos = sorted({g.algo_class for g in groups if BUILT_IN.get(g.algo_class) is not ALGORITHMS.get(g.algo_class)})
     envs = sorted({g.env for g in groups if BUILT_IN_ENVS.get(g.env) is not ENVS.get(g.env)})
     return [f"algorithm {a!r}" for a in algos] + [f"env {e!r}" for e in envs]
+
+
+def unseen_by_workers(groups: list[RunSpec], backend: str = "local") -> str:
+    """Why worker processes would not hold the run-time registrations of ``groups`` ("" when they would, or there are
+    none). A spawned local worker runs the top level of the script that started it again, registrations included; a
+    notebook, ``python -c`` or a REPL has no script to run again, and a Ray worker imports the registries from their
+    source. (A registration under a script's ``if __name__ == "__main__":`` is not run again either: the worker then
+    fails with one line saying so, :func:`harness.runner.run_group`.)"""
+    entries = runtime_entries(groups)
+    script = getattr(sys.modules.get("__main__"), "__file__", None)
+    if not entries or (backend != "ray" and script):
+        return ""
+    where = "this Ray driver" if backend == "ray" else "this process (a notebook, `python -c` or a REPL)"
+    return f"{', '.join(entries)} registered at run time in {where}, which worker processes would not hold"
 
 
 def plan_words(words: list[str]) -> Plan:

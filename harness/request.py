@@ -194,18 +194,15 @@ class RunRequest:
     @classmethod
     def from_words(cls, words: list[str]) -> "RunRequest":
         """Parse and check the words of ``harness run`` (one line naming the first problem)."""
-        from harness.catalogue import algorithm_names, algorithm_setting_names  # before torch loads
+        from harness.catalogue import algorithm_names, check_unscoped_settings  # before torch loads
 
         ALGORITHMS = algorithm_names()
+        check_unscoped_settings([w for w in words if "=" in w], RUN_KEYS)
         for w in words:  # name the unknown algorithm of an override, not just its scope
             if "=" not in w:
                 continue  # parse_words names it
             k = key_word(w.split("=", 1)[0])  # MEDAL.lr, risc-no-tab.lr: as parse_words reads them
             scope = k.split(".", 1)[0] if "." in k else None
-            if scope is None and k not in RUN_KEYS and k in algorithm_setting_names():
-                v = w.split("=", 1)[1]
-                raise ConfigError(f"{k} is an algorithm setting: give it as all.{k}={v} (every algorithm that has it) "
-                                  f"or <algo>.{k}={v} (one algorithm)")
             if scope is not None and scope != "all" and scope not in ALGORITHMS:
                 raise ConfigError(f"unknown algorithm {scope!r} in override {w!r}{did_you_mean(scope, ALGORITHMS)}; "
                                   f"known: {', '.join(ALGORITHMS)}")

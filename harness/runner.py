@@ -36,9 +36,16 @@ def run_group(spec: RunSpec, command: str, queue=None, threads: int | None = Non
     import torch  # here: planning and its one-line errors come before torch loads
 
     from harness import interrupts
+    from harness.envs import ENVS
     from harness.interrupts import RunInterrupted, RunLocked, in_group, remove_stale_temp, run_locks
+    from harness.registry import ALGORITHMS
     from harness.results import update_status
 
+    for kind, name, known in (("algorithm", spec.algo_class, ALGORITHMS), ("env", spec.env, ENVS)):
+        if name not in known:  # registered at run time where this (spawned) process did not run the registration
+            return (f"{spec.label}: {kind} {name!r} is not registered in this worker process: a registration made at "
+                    "run time reaches spawned workers only from the top level of the script (not under `if __name__ "
+                    "== '__main__':`); move it there, register it in the project's registry, or run with workers=1")
     if threads:
         torch.set_num_threads(threads)
     keep_freed_memory()  # same results, fewer page faults per update

@@ -141,10 +141,9 @@ def common_envs(scores: pd.DataFrame, algos: Iterable[str]) -> list[str]:
 def no_shared_env(scores: pd.DataFrame, algos: Iterable[str]) -> str:
     """Why no env is shared by every one of ``algos``: per env with results, the chosen methods it lacks
     (``point: lacks FBRL, MEDAL``)."""
-    algos = list(algos)
-    lacking = {e: [a for a in algos if not ((scores["env"] == e) & (scores["algo"] == a)).any()]
-               for e in order_envs(set(scores["env"]))}
-    return "; ".join(f"{e}: lacks {', '.join(algo_label(a) for a in lack)}" for e, lack in lacking.items() if lack)
+    held = scores.groupby("env")["algo"].agg(set)
+    return "; ".join(f"{e}: lacks {', '.join(algo_label(a) for a in lack)}" for e in order_envs(held.index)
+                     if (lack := [a for a in order_algos(algos) if a not in held[e]]))
 
 
 def aggregate_scores(

@@ -24,7 +24,7 @@ UsageError = ConfigError  # the name the command-line code uses
 
 
 #: keys whose value is a path: a leading ``~`` means the home directory, as the shell would expand it
-PATH_KEYS = frozenset({"results", "to", "out", "doc", "dest", "record", "search", "data_dir"})
+PATH_KEYS = frozenset({"results", "to", "out", "doc", "dest", "record", "search", "suite", "storage"})
 
 
 def parse_words(words: list[str], allowed: Collection[str] | None = None, *,

@@ -364,27 +364,55 @@ def test_gnu_flags_dashes_short_names_and_seed_forms():
 
 
 @requires_data
-def test_an_algorithm_registered_at_run_time_runs_in_this_process(monkeypatch):
-    """Spawned workers import the registries from their source: a method added in a notebook or script is planned in
-    one process (a packing reason says why), and an explicit workers=2 or Ray is refused with one line."""
+def test_an_algorithm_registered_at_run_time_reaches_the_workers_or_runs_in_this_process(monkeypatch):
+    """A registration at a script's top level reaches spawned workers (the script runs again there): the plan keeps
+    its workers. One made in a notebook, `python -c` or a REPL does not: the plan trains in this process (a packing
+    reason says why), and an explicit workers=2, env_workers or Ray is refused with one line. A worker that lacks the
+    name says so in one line."""
+    import types
+
+    from harness.packing import Machine
+    from harness.plan import RunSpec
     from harness.planning import build_plan
     from harness.request import RunRequest
+    from harness.runner import run_group
+    from harness.words import ConfigError
 
     class MyNaive(ALGORITHMS["naive"]):
         pass
 
+    monkeypatch.setattr(Machine, "detect", classmethod(lambda cls: Machine(cores=4, memory=16 << 30)))
     monkeypatch.setitem(ALGORITHMS, "my_naive", MyNaive)
-    words = ["algo=my_naive", "env=door", "seeds=2", "steps=100", "eval_every=100"]
+    words = ["algo=my_naive", "env=door", "seeds=2", "members=1", "steps=100", "eval_every=100"]
+    assert build_plan(RunRequest.from_words(words)).workers == 2  # pytest's __main__ is a script
+    monkeypatch.setitem(sys.modules, "__main__", types.ModuleType("__main__"))  # a notebook's: no file
     plan = build_plan(RunRequest.from_words(words))
-    assert plan.workers == 1 and {g.algo for g in plan.groups} == {"my_naive"}
-    assert any("registered at run time" in r for r in plan.packing) or len(plan.groups) == 1
-    for extra in (["workers=2"], ["backend=ray"]):
-        with pytest.raises(Exception, match="algorithm 'my_naive' registered at run time in this process"):
+    assert plan.workers == 1 and {g.env_workers for g in plan.groups} == {0} and {g.algo for g in plan.groups} == {
+        "my_naive"}
+    assert plan.packing[-1] == ("workers=1, env_workers=0: algorithm 'my_naive' registered at run time in this process "
+                                "(a notebook, `python -c` or a REPL), which worker processes would not hold")
+    for extra in (["workers=2"], ["env_workers=2"], ["backend=ray"]):
+        with pytest.raises(ConfigError, match="algorithm 'my_naive' registered at run time in this"):
             build_plan(RunRequest.from_words(words + extra))
-    # a built-in replaced at run time is just as invisible to the workers
+    # a built-in replaced at run time is just as unknown to the workers
     monkeypatch.setitem(ALGORITHMS, "naive", MyNaive)
-    with pytest.raises(Exception, match="algorithm 'naive' registered at run time"):
+    with pytest.raises(ConfigError, match="algorithm 'naive' registered at run time"):
         build_plan(RunRequest.from_words(["algo=naive", "env=door", "seeds=2", "steps=100", "workers=2"]))
+    # a worker process without the registration (one made under a script's `if __name__ == "__main__":`)
+    err = run_group(RunSpec(suite="s", env="sawyer_door", algo="not_here", seeds=(0,), steps=100), "cmd")
+    assert err.startswith("sawyer_door/not_here seeds=0: algorithm 'not_here' is not registered in this worker process")
+
+
+def test_a_budget_within_the_seed_phase_is_named():
+    from harness.plan import RunSpec
+
+    g = RunSpec(suite="s", env="sawyer_door", algo="v", algo_class="naive", seeds=(0,), steps=100,
+                config={"seed_steps": 100})
+    assert g.seed_phase_note() == ("sawyer_door/v: steps=100 is within seed_steps=100 (random actions before the first "
+                                   "update): these runs never update their networks; raise steps= or lower "
+                                   "naive.seed_steps=")
+    assert RunSpec(suite="s", env="sawyer_door", algo="naive", seeds=(0,), steps=101,
+                   config={"seed_steps": 100}).seed_phase_note() is None
 
 
 def test_first_answers_without_argparse_words(capsys):

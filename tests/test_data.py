@@ -49,6 +49,9 @@ def test_not_found_is_one_clear_line(tmp_path, monkeypatch):
         find_data_dir("reference/published_curves.csv.gz")
     msg = str(e.value)
     assert "\n" not in msg and "not something `harness data fetch` downloads" in msg and "published=none" in msg
+    with pytest.raises(DataNotFoundError) as e:  # the same with one directory named (HARNESS_DATA_DIR, --data-dir)
+        find_data_dir("reference/published_curves.csv.gz", explicit=tmp_path)
+    assert "not something `harness data fetch` downloads" in str(e.value) and str(tmp_path) in str(e.value)
     # an explicit directory is the only place searched: no silent fallback to the others
     for explicit in (tmp_path / "missing", tmp_path):
         with pytest.raises(DataNotFoundError) as e:

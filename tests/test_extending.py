@@ -212,7 +212,14 @@ def test_a_variant_overrides_one_hook_and_runs(registered, monkeypatch, tmp_path
     the real protocol runs it past its seed phase."""
     import torch
 
-    monkeypatch.setitem(ALGORITHMS, "naive_shaped", NaiveShaped)
+    calls = []
+
+    class Counted(NaiveShaped):
+        def reward(self, batch):
+            calls.append(batch["reward"].shape)
+            return super().reward(batch)
+
+    monkeypatch.setitem(ALGORITHMS, "naive_shaped", Counted)
     data, results = tmp_path / "data", tmp_path / "results"
     assert main(["data", "scripted", "env=toy_point", f"out={data}"]) == 0
     args = ["--data-dir", str(data), "run", "algo=naive_shaped", "env=toy_point", "seed=0", "steps=200",
@@ -221,6 +228,7 @@ def test_a_variant_overrides_one_hook_and_runs(registered, monkeypatch, tmp_path
     assert main(args) == 0, capsys.readouterr().err
     train = load(results, filename="train.parquet")
     assert set(train.algo) == {"naive_shaped"} and len(train)
+    assert len(calls) == 150 and calls[0] == (1, 8)  # every update past the 50 seed steps, on its sampled batch
     spec = get_spec("toy_point")
     next_obs = torch.tensor([[[0.5, 1.0], [1.0, 1.0]]])  # [x, goal]: 0.5 away, and at the goal
     algo = NaiveShaped.__new__(NaiveShaped)

@@ -73,6 +73,18 @@ def test_search_space_is_data():
     assert space["disc_lr"] == {"type": "float", "low": 1e-5, "high": 1e-3, "log": True}
 
 
+def test_a_study_goes_on_only_under_its_own_settings():
+    from harness.suites import ConfigError
+    from harness.tune.studies import check_protocol
+
+    kept = {"steps": 300, "eval_every": 100, "seeds": [0], "config": {"lr": 0.001, "batch_size": 32},
+            "space": {"disc_lr": {"type": "float", "low": 1e-5, "high": 1e-3, "log": True}}}
+    check_protocol("s", kept, {**kept, "config": {**kept["config"], "new_key": 1}})  # a key gained: the same
+    check_protocol("s", kept, {**kept, "later": 1})  # a setting this study did not keep: not compared
+    with pytest.raises(ConfigError, match=r"\(steps 300 -> 200; batch_size 32 -> 64\)"):
+        check_protocol("s", kept, {**kept, "steps": 200, "config": {"lr": 0.001, "batch_size": 64}})
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [

@@ -28,8 +28,8 @@ def tab_aggregates(root, sig, sel: Sel) -> None:
         st.info("Choose at least one method.")
         return
     if not shared:
-        st.info(f"No env has results of every chosen method ({no_shared_env(scores, chosen)}): leave out a method, "
-                "or choose fewer envs in the sidebar.")
+        st.info(f"No env has results of every chosen method ({no_shared_env(scores, chosen)}): leave out a method "
+                "(or add an env the sidebar leaves out).")
         return
     left_out = sorted(set(scores["env"]) - set(shared))
     agg = aggregates_for(root, sig, sel._replace(envs=tuple(shared), algos=tuple(chosen)), step, last_k, 2000)

@@ -96,12 +96,13 @@ def trial_request(base: RunRequest, algo: str, params: dict[str, Any], results: 
 
 def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
-    from harness.catalogue import algorithm_name
+    from harness.catalogue import algorithm_name, check_unscoped_settings
     from harness.envs import env_name
-    from harness.planning import build_plan
+    from harness.planning import build_plan, unseen_by_workers
     from harness.registry import ALGORITHMS
     from harness.request import check_device, parse_seeds
 
+    check_unscoped_settings([w for w in words if "=" in w], TUNE_KEYS)
     ov, fixed_config = parse_words(words, TUNE_KEYS, scope=lambda s: True)
 
     def optional(key: str) -> int | None:
@@ -170,13 +171,17 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
         params = {k: (s["choices"][pick] if s["type"] == "categorical" else s["low"] if pick == 0 else s["high"])
                   for k, s in space.items()}
         plan = build_plan(trial_request(base, algo, params, probe))
+    unseen = unseen_by_workers(plan.groups, setup["backend"])
+    if unseen and (setup["workers"] > 1 or setup["backend"] == "ray"):
+        raise ConfigError(f"{unseen}; tune with workers=1 (backend=local), or register it in the project's registry")
     g = plan.groups[0]
     setup.update(request=base, fixed_config=fixed_config, steps=g.steps, eval_every=g.eval_every,
                  seed_note=g.seed_phase_note())
     # what makes one trial's score comparable with another's: a study keeps it and refuses to go on under another
+    # (the resolved config, the search space's keys left out: `all.lr=` and `medal.lr=`, `1e-3` and `0.001` are one)
     setup["protocol"] = json.loads(json.dumps(  # as a study keeps it (JSON): lists, not tuples
         {"steps": g.steps, "eval_every": g.eval_every, "eval_episodes": g.eval_episodes, "seeds": list(g.seeds),
-         "fixed_config": fixed_config, "space": space}))
+         "config": {k: v for k, v in g.config.items() if k not in space}, "space": space}))
     setup["command"] = " ".join(["harness", "tune", *map(shlex.quote, words)])
     return setup
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import socket
+import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -109,16 +110,31 @@ def open_study(setup: dict[str, Any], create: bool, storage=None):
     if create and "protocol" in setup:
         if "protocol" in ident:
             check_protocol(setup["study"], ident["protocol"], setup["protocol"])
-        else:  # a new study, or one from before the protocol was kept: it keeps this one from now on
+        else:  # a new study, or one made before studies kept their settings: it keeps these from now on
+            if study.trials:
+                print(f"harness: note: study {setup['study']!r} has {len(study.trials)} trial(s) from before studies "
+                      "kept their settings; this command's settings are kept as the study's from now on",
+                      file=sys.stderr)
             study.set_user_attr("protocol", setup["protocol"])
     return study
 
 
 def check_protocol(study: str, kept: dict[str, Any], given: dict[str, Any]) -> None:
-    """Refuse to go on with a study under another budget, evaluation, seeds, fixed settings or search space than its
-    trials were scored with (their scores would not be comparable), naming what changed."""
-    changed = [f"{k} {kept.get(k)!r} -> {given[k]!r}" if k in ("fixed_config", "space")
-               else f"{k} {kept.get(k)} -> {given[k]}" for k in given if kept.get(k) != given[k]]
+    """Refuse to go on with a study under another budget, evaluation, seeds, config or search space than its trials
+    were scored with (their scores would not be comparable), naming what changed. A config that only gained keys (at
+    the defaults that keep the old behaviour, the project's rule) is the same; so is a key one side does not keep."""
+    from harness.planning import only_gained_keys
+
+    def differs(k: str) -> bool:
+        return not only_gained_keys(kept[k], given[k]) if k == "config" else kept[k] != given[k]
+
+    def change(k: str) -> str:
+        if k == "config":
+            keys = sorted(k2 for k2 in kept[k] if kept[k][k2] != given[k].get(k2))
+            return ", ".join(f"{k2} {kept[k][k2]!r} -> {given[k].get(k2)!r}" for k2 in keys)
+        return f"{k} {kept[k]!r} -> {given[k]!r}" if k == "space" else f"{k} {kept[k]} -> {given[k]}"
+
+    changed = [change(k) for k in given if k in kept and differs(k)]
     if changed:
         raise ConfigError(f"study {study!r} was run with other settings ({'; '.join(changed)}): its trials would not "
                           "be comparable; give the study's settings again, or choose another study=")
