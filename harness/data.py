@@ -93,22 +93,17 @@ def find_data_dir(need: str = "demos", explicit: str | os.PathLike | None = None
         if (d / need).exists():
             return d
     looked = ", ".join(f"{label} ({d})" for label, d in cands)
-    if need.startswith("reference"):  # not among what `harness data fetch` downloads
-        raise DataNotFoundError(
-            f"the published learning curves ('{need}') not found; looked in {looked}. They are the project's data set "
-            "(EARL's released evaluations and the RISC paper's curves, one CSV), not something `harness data fetch` "
-            "downloads: put the file under reference/ of a data directory (HARNESS_DATA_DIR / --data-dir), or go on "
-            "without them (published=none)")
+    if need.startswith("reference"):  # EARL's released evaluations and the RISC paper's curves, one CSV
+        raise DataNotFoundError(f"the published learning curves ('{need}') not found; looked in {looked}. They come "
+                                "with the project's data set, not something `harness data fetch` downloads: put the "
+                                "file in a data directory (HARNESS_DATA_DIR / --data-dir), or use published=none")
     if len(cands) == 1:
         label, d = cands[0]
         what = "does not exist" if not d.exists() else f"has no '{need}'"
         raise DataNotFoundError(f"the EARL data directory given by {label} ({d}) {what}. Fix: point {label} at a "
                                 "directory made by `harness data fetch` (demos/, assets/), or unset it")
-    raise DataNotFoundError(
-        f"EARL data '{need}' not found; looked in {looked}. "
-        "Fix: run `harness data fetch` (offline: `harness data scripted`), or set HARNESS_DATA_DIR / --data-dir to an "
-        "EARL data directory."
-    )
+    raise DataNotFoundError(f"EARL data '{need}' not found; looked in {looked}. Fix: run `harness data fetch` (offline: "
+                            "`harness data scripted`), or set HARNESS_DATA_DIR / --data-dir to an EARL data directory.")
 
 
 def asset_path(*parts: str) -> Path:

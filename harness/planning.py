@@ -24,7 +24,7 @@ from harness.request import (
     RunRequest,
     parse_seeds,
 )
-from harness.runnable import CannotRunThere, check_runs_on
+from harness.runnable import CannotRunThere, check_runs_on, unseen_by_workers
 from harness.suites import (
     ConfigError,
     as_plain,
@@ -248,31 +248,6 @@ def build_plan(req: RunRequest) -> Plan:
                 packing=reasons, per_device=packing.per_device, left_out=tuple(left_out))
     check_results_dirs(plan)
     return plan
-
-
-def runtime_entries(groups: list[RunSpec]) -> list[str]:
-    """The algorithms and envs of ``groups`` that were added to (or replaced in) the registries at run time, outside
-    their source: ``algorithm 'x'``, ``env 'y'``."""
-    from harness.envs import BUILT_IN_ENVS, ENVS
-    from harness.registry import ALGORITHMS, BUILT_IN
-
-    algos = sorted({g.algo_class for g in groups if BUILT_IN.get(g.algo_class) is not ALGORITHMS.get(g.algo_class)})
-    envs = sorted({g.env for g in groups if BUILT_IN_ENVS.get(g.env) is not ENVS.get(g.env)})
-    return [f"algorithm {a!r}" for a in algos] + [f"env {e!r}" for e in envs]
-
-
-def unseen_by_workers(groups: list[RunSpec], backend: str = "local") -> str:
-    """Why worker processes would not hold the run-time registrations of ``groups`` ("" when they would, or there are
-    none). A spawned local worker runs the top level of the script that started it again, registrations included; a
-    notebook, ``python -c`` or a REPL has no script to run again, and a Ray worker imports the registries from their
-    source. (A registration under a script's ``if __name__ == "__main__":`` is not run again either: the worker then
-    fails with one line saying so, :func:`harness.runner.run_group`.)"""
-    entries = runtime_entries(groups)
-    script = getattr(sys.modules.get("__main__"), "__file__", None)
-    if not entries or (backend != "ray" and script):
-        return ""
-    where = "this Ray driver" if backend == "ray" else "this process (a notebook, `python -c` or a REPL)"
-    return f"{', '.join(entries)} registered at run time in {where}, which worker processes would not hold"
 
 
 def plan_words(words: list[str]) -> Plan:

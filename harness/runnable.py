@@ -1,7 +1,10 @@
 """Which algorithm runs on which env: the refusals a plan makes before anything is written (one line each), and the
-pairs a ``runnable_only`` suite leaves out (:class:`CannotRunThere`)."""
+pairs a ``runnable_only`` suite leaves out (:class:`CannotRunThere`); and which worker processes can run an algorithm
+or env registered at run time (:func:`unseen_by_workers`)."""
 
 from __future__ import annotations
+
+import sys
 
 from harness.envs import env_info
 from harness.words import ConfigError
@@ -50,3 +53,28 @@ def check_runs_on(name: str, cls, cfg, env: str) -> None:
         cls.check_task(cfg, env_info(env).spec)
     except ValueError as e:
         raise ConfigError(f"{name} on {env}: {e}") from None
+
+
+def runtime_entries(groups: list) -> list[str]:
+    """The algorithms and envs of ``groups`` that were added to (or replaced in) the registries at run time, outside
+    their source: ``algorithm 'x'``, ``env 'y'``."""
+    from harness.envs import BUILT_IN_ENVS, ENVS
+    from harness.registry import ALGORITHMS, BUILT_IN
+
+    algos = sorted({g.algo_class for g in groups if BUILT_IN.get(g.algo_class) is not ALGORITHMS.get(g.algo_class)})
+    envs = sorted({g.env for g in groups if BUILT_IN_ENVS.get(g.env) is not ENVS.get(g.env)})
+    return [f"algorithm {a!r}" for a in algos] + [f"env {e!r}" for e in envs]
+
+
+def unseen_by_workers(groups: list, backend: str = "local") -> str:
+    """Why worker processes would not hold the run-time registrations of ``groups`` ("" when they would, or there are
+    none). A spawned local worker runs the top level of the script that started it again, registrations included; a
+    notebook, ``python -c`` or a REPL has no script to run again, and a Ray worker imports the registries from their
+    source. (A registration under a script's ``if __name__ == "__main__":`` is not run again either: the worker then
+    fails with one line saying so, :func:`harness.runner.run_group`.)"""
+    entries = runtime_entries(groups)
+    script = getattr(sys.modules.get("__main__"), "__file__", None)
+    if not entries or (backend != "ray" and script):
+        return ""
+    where = "this Ray driver" if backend == "ray" else "this process (a notebook, `python -c` or a REPL)"
+    return f"{', '.join(entries)} registered at run time in {where}, which worker processes would not hold"

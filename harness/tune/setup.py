@@ -98,9 +98,10 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
     """Validate the tune command's words into a plain (picklable) setup dict; nothing is written."""
     from harness.catalogue import algorithm_name, check_unscoped_settings
     from harness.envs import env_name
-    from harness.planning import build_plan, unseen_by_workers
+    from harness.planning import build_plan
     from harness.registry import ALGORITHMS
     from harness.request import check_device, parse_seeds
+    from harness.runnable import unseen_by_workers
 
     check_unscoped_settings([w for w in words if "=" in w], TUNE_KEYS)
     ov, fixed_config = parse_words(words, TUNE_KEYS, scope=lambda s: True)
