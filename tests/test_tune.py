@@ -28,7 +28,7 @@ from harness.tune.setup import load_search_space  # noqa: E402
 
 ENV = {**os.environ, "PYTHONUNBUFFERED": "1", "OMP_NUM_THREADS": "1"}
 TINY = ["algo=medal", "env=tabletop_manipulation", "steps=300", "eval_every=100", "checkpoint_every=100",
-        "eval_episodes=1", "all.seed_steps=100", "all.batch_size=32", "pruner=none", "seed=0"]
+        "eval_episodes=1", "all.seed_steps=100", "all.batch_size=32", "pruner=none", "sampler_seed=0"]
 FINISHED = (TrialState.COMPLETE, TrialState.PRUNED)
 
 
@@ -85,6 +85,19 @@ def test_a_study_goes_on_only_under_its_own_settings():
         check_protocol("s", kept, {**kept, "steps": 200, "config": {"lr": 0.001, "batch_size": 64}})
 
 
+@requires_data
+def test_seed_words_mean_what_they_mean_in_harness_run(tmp_path):
+    """``seed=3`` trains seed 3 (as ``harness run seed=3``); the sampler's seed is ``sampler_seed=``."""
+    from harness.tune.setup import parse_setup
+
+    base = ["algo=medal", "env=tabletop_manipulation", "trials=2", f"results={tmp_path / 'r'}"]
+    one = parse_setup([*base, "seed=3", "sampler_seed=11"])
+    assert one["protocol"]["seeds"] == [3] and one["sampler_seed"] == 11
+    assert parse_setup([*base, "seeds=2"])["protocol"]["seeds"] == [0, 1]
+    default = parse_setup(base)
+    assert default["protocol"]["seeds"] == [0] and default["sampler_seed"] is None
+
+
 @pytest.mark.parametrize(
     "args, needle",
     [
@@ -96,6 +109,7 @@ def test_a_study_goes_on_only_under_its_own_settings():
         (["algo=medal", "env=nope", "trials=2"], "unknown env 'nope'"),
         (["algo=medal", "env=tabletop_manipulation", "trials=2", "medal.nope=1"], "unknown config key"),
         (["algo=medal", "env=tabletop_manipulation", "--best"], "no study 'medal_tabletop_manipulation'"),
+        (["algo=medal", "env=tabletop_manipulation", "trials=2", "seed=1", "seeds=2"], "give seed= or seeds=, not both"),
     ],
 )
 def test_bad_input_one_line_exit_2(args, needle, tmp_path, capsys):

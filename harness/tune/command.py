@@ -1,7 +1,7 @@
 """``harness tune``: an Optuna study over an algorithm's hyperparameters (MEDAL's discriminator).
 
     harness tune algo=medal env=ENV trials=N [study=NAME] [storage=PATH|URL] [steps=N] [seeds=N]
-                 [workers=N] [pruner=median|hyperband|none] [sampler=tpe|random] [seed=N]
+                 [seed=K] [workers=N] [pruner=median|hyperband|none] [sampler=tpe|random] [sampler_seed=N]
                  [results=DIR] [backend=local|ray] [ray_address=...] [search=FILE]
                  [heartbeat_interval=S] [grace_period=S] [eval_every=...] [eval_episodes=...]
                  [checkpoint_every=...] [device=...] [<algo>.<key>=value | all.<key>=value ...]

@@ -25,11 +25,12 @@ TUNE_KEY_HELP: dict[str, Any] = {
     "study": ("<algo>_<env>", "study name"),
     "storage": ("<results>/tuning/<study>.journal", "journal file path or RDB URL (postgresql://..., sqlite:///...)"),
     "steps": RUN_KEYS["steps"],
-    "seeds": ("1", "seeds per trial (trained as members of one process)"),
+    "seeds": ("1", "seeds per trial, a count or a list as in harness run (trained as members of one process)"),
+    "seed": RUN_KEYS["seed"],
     "workers": ("1", "worker processes (or Ray tasks) on the same study"),
     "pruner": ("median", "median, hyperband or none"),
     "sampler": ("tpe", "tpe or random"),
-    "seed": ("none", "sampler seed"),
+    "sampler_seed": ("none", "the sampler's seed (same seed, same sequence of suggested parameters)"),
     "results": RUN_KEYS["results"],
     "backend": RUN_KEYS["backend"],
     "ray_address": RUN_KEYS["ray_address"],
@@ -131,14 +132,16 @@ def parse_setup(words: list[str], best: bool = False) -> dict[str, Any]:
         raise ConfigError("give trials=N, the number of finished trials the study should reach")
     setup["trials"] = parse_int("trials", ov["trials"], 1)
     setup["workers"] = parse_int("workers", ov.get("workers", 1), 1)
-    seeds = ov.get("seeds", "1")
+    if "seed" in ov and "seeds" in ov:
+        raise ConfigError("give seed= or seeds=, not both")
+    seeds = ov["seeds"] if "seeds" in ov else [str(ov["seed"]).strip("[] ")] if "seed" in ov else "1"
     setup["pruner"] = ov.get("pruner", "median")
     if setup["pruner"] not in PRUNERS:
         raise ConfigError(f"unknown pruner {setup['pruner']!r}; known: {', '.join(PRUNERS)}")
     setup["sampler"] = ov.get("sampler", "tpe")
     if setup["sampler"] not in SAMPLERS:
         raise ConfigError(f"unknown sampler {setup['sampler']!r}; known: {', '.join(SAMPLERS)}")
-    setup["seed"] = parse_int("seed", ov["seed"], 0) if "seed" in ov else None
+    setup["sampler_seed"] = parse_int("sampler_seed", ov["sampler_seed"], 0) if "sampler_seed" in ov else None
     setup["backend"] = ov.get("backend", "local")
     setup["ray_address"] = ov.get("ray_address")
 

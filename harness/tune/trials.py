@@ -37,7 +37,7 @@ def suggest(trial, name: str, spec: dict[str, Any]) -> Any:
 
 def make_sampler(setup: dict[str, Any], index: int, n_existing: int):
     optuna = load_optuna()
-    seed = None if setup["seed"] is None else setup["seed"] + 1009 * index + n_existing
+    seed = None if setup["sampler_seed"] is None else setup["sampler_seed"] + 1009 * index + n_existing
     if setup["sampler"] == "random":
         return optuna.samplers.RandomSampler(seed=seed)
     return optuna.samplers.TPESampler(seed=seed)
