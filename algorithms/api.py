@@ -256,6 +256,11 @@ class Algorithm(ABC):
     #: MEDAL's code does) or :data:`AFTER_STORE` (once the new transitions are stored, before :meth:`observe` switches
     #: phases and picks goals with the updated critic, as RISC's code does)
     update_at: ClassVar[str] = AFTER_ACT
+    #: True: a step updates each member's ACTING controller only (forward or backward phase), so a process whose members
+    #: are in different phases runs every controller's member-batched update, twice the work of one. On a CPU the
+    #: harness then trains one seed per process (``harness.packing``); measured on MEDAL, sawyer_peg: 84 steps/s per
+    #: core as one seed, 51 as two members in different phases, 93 only while their phases coincide.
+    phase_split_updates: ClassVar[bool] = False
 
     @classmethod
     def requires_demos(cls, cfg: AlgoConfig) -> bool:

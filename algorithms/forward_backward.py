@@ -46,6 +46,7 @@ class ForwardBackward(Algorithm):
     """Forward + backward SAC with per-member phases (see the module docstring); not registered itself."""
 
     Config = ForwardBackwardConfig
+    phase_split_updates = True  # the forward and the backward controller each learn only in their members' phases
     backward_ends_on_success = False  # the backward phase also ends when [s', g_backward] succeeds (FBRL)
 
     def __init__(self, task: Task, demos: DemoSet, cfg: ForwardBackwardConfig, seeds: list[int], device: torch.device):

@@ -9,6 +9,9 @@ from algorithms.update_modes import UPDATES
 
 KeyHelp = dict[str, tuple[str, str]]
 
+DENORMALS_HELP = ("keep: IEEE gradual underflow, torch's default, as training runs; flush: subnormal floats read and "
+                  "written as zero (harness.backends.flush_denormals), for comparison")
+
 CURVE_METRICS = ("deployed_success", "deployed_return", "continuing_reward", "interventions")
 PUBLISHED_SOURCES = ("risc_paper", "earl_benchmark")
 
@@ -52,6 +55,9 @@ BENCH: dict[str, KeyHelp] = {
         "update": ("default", "SAC updates: " + ", ".join(UPDATES)),
         "allocator": ("keep", "keep: freed heap kept for reuse, as training runs (harness.backends.keep_freed_memory); "
                               "glibc: its defaults"),
+        "denormals": ("keep", DENORMALS_HELP),
+        "checkpoint": ("none", "a run's checkpoint.pt: time training from that state (the run's algo, env, seeds and "
+                               "config from its run.yaml; no seed phase), then print the state's digest"),
     },
     "update": {
         "algo": ("medal", "algorithm (its first SAC agent)"), "env": ("sawyer_door", "environment (obs and action sizes)"),
@@ -59,6 +65,7 @@ BENCH: dict[str, KeyHelp] = {
         "threads": ("1", "torch threads"), "repeats": ("5", "timed rounds (the median is reported)"),
         "n": ("50", "updates per round"),
         "allocator": ("keep", "keep: freed heap kept for reuse, as training runs; glibc: its defaults"),
+        "denormals": ("keep", DENORMALS_HELP),
         "record": ("-", "append the result as a row (date, commit, CPU) to this Markdown file, e.g. docs/performance.md"),
     },
     "matmul": {"members": ("2", "seeds per product"), "repeats": ("5", "timed repeats")},

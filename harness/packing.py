@@ -6,8 +6,10 @@ never results. Values given on the command line (``members=``, ``workers=``, ``e
 or cell's own ``members`` wins over the automatic choice.
 
 * CPU: one process per core. A group holds the suite's ``members`` (product suites: 1; cell suites: the cell's
-  seeds); envs step in the group's process (on a CPU the update dominates a step; ``harness bench train`` measures
-  it). This is the packing every CPU run has always had.
+  seeds, but one for a method that updates only each seed's acting controller, ``Algorithm.phase_split_updates``:
+  members in different phases would run every controller's update, docs/performance.md); envs step in the group's
+  process (on a CPU the update dominates a step; ``harness bench train`` measures it). A group with a checkpoint
+  keeps its seeds (:func:`seed_groups`).
 * GPU: the member dimension is what makes a GPU pay (one kernel launch serves E seeds), so a group holds all seeds of
   its (algorithm, env, config), up to :data:`GPU_MAX_MEMBERS`. Processes share the GPUs round-robin (``device=cuda``
   on a multi-GPU node uses every GPU; ``cuda:K`` pins one), as many per GPU as fit its memory and the node's cores
@@ -24,6 +26,7 @@ import itertools
 import math
 import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Sequence
 
 GPU_MAX_MEMBERS = 128  # seeds per process on a GPU; larger groups are split evenly
@@ -153,3 +156,24 @@ def pack(work: Sequence[Work], device: str, machine: Machine, members: int | Non
         if n_env:
             why.append(f"env_workers={n_env} per process ({cores} cores, {n_workers} processes)")
     return Packing(tuple(per), n_workers, n_env, devices, per_device, tuple(why))
+
+
+def seed_groups(seeds: list[int], members: int, checkpoints: Path) -> list[tuple[int, ...]]:
+    """The groups (one process each) of a method's ``seeds``: a group with a checkpoint in ``checkpoints`` (its
+    ``seeds=a-b`` directories) stays as it trained, whatever ``members`` says now, so its runs resume rather than
+    start again; the other seeds go ``members`` to a group, in order."""
+    from harness.results import CHECKPOINT_FILE
+
+    kept: list[tuple[int, ...]] = []
+    taken: set[int] = set()
+    for d in sorted(checkpoints.glob("seeds=*")) if checkpoints.is_dir() else []:
+        try:
+            g = tuple(int(x) for x in d.name.removeprefix("seeds=").split("-"))
+        except ValueError:
+            continue
+        if (d / CHECKPOINT_FILE).exists() and set(g) <= set(seeds) and not taken & set(g):
+            kept.append(g)
+            taken |= set(g)
+    rest = [s for s in seeds if s not in taken]
+    return sorted(kept + [tuple(rest[i : i + members]) for i in range(0, len(rest), members)],
+                  key=lambda g: seeds.index(g[0]))

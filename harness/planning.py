@@ -13,7 +13,7 @@ from typing import Any
 
 from algorithms.update_modes import UPDATES
 from harness.envs import EnvUnavailableError, UnknownEnvError, check_env, env_info, env_name, load_env_demos
-from harness.packing import Machine, Work, pack
+from harness.packing import Machine, Work, pack, seed_groups
 from harness.plan import Plan, RunSpec
 from harness.provenance import git_sha
 from harness.request import (
@@ -189,6 +189,7 @@ def build_plan(req: RunRequest) -> Plan:
     left_out: list[str] = []
     units = (_cell_units if "cells" in suite else _product_units)(suite, req, left_out)
     from harness.registry import ALGORITHMS  # after the names are checked: a bad word is answered before torch loads
+    from harness.results import checkpoint_path
 
     selected = {u.algo_class for u in units}
     stray = sorted(set(req.config) - selected - {"all"})
@@ -215,8 +216,13 @@ def build_plan(req: RunRequest) -> Plan:
     protocol = {"eval_every": eval_every, "eval_episodes": eval_episodes}
     sha = git_sha()
     machine = Machine.detect()
+    split = {u.name for u in units if ALGORITHMS[u.algo_class].phase_split_updates and u.cpu_members > 1}
     packing = pack([Work(len(u.seeds), u.steps, env_info(u.env).spec.obs_dim, env_info(u.env).spec.act_dim, u.members,
-                         u.cpu_members) for u in units], req.device, machine, req.members, req.workers, req.env_workers)
+                         1 if u.name in split else u.cpu_members) for u in units],
+                   req.device, machine, req.members, req.workers, req.env_workers)
+    if split and not str(req.device).startswith("cuda") and req.members is None:
+        packing = replace(packing, reasons=(*packing.reasons, f"one seed per process for {', '.join(sorted(split))}: a "
+                                            "step updates only each seed's acting controller (a checkpointed group stays)"))
     groups: list[RunSpec] = []
     for (u, cfg), members in zip(configs, packing.members):
         fwd = load_env_demos(u.env, "forward")  # fails early, with one line, if the data is missing
@@ -226,13 +232,14 @@ def build_plan(req: RunRequest) -> Plan:
             ident["algo_class"] = u.algo_class
         h = config_hash(ident)
         groups += [RunSpec(suite=suite_name, env=u.env, algo=u.name, algo_class=u.algo_class,
-                           seeds=tuple(u.seeds[i : i + members]), steps=u.steps, eval_every=eval_every,
+                           seeds=seeds, steps=u.steps, eval_every=eval_every,
                            eval_episodes=eval_episodes, checkpoint_every=ckpt, keep_every=keep, log_every=log_every,
                            device=packing.device_of(len(groups) + n), results=req.results, config=cfg_plain,
                            config_hash=h, demo_source=fwd.source, git_sha=sha, study=req.study, trial=req.trial,
                            tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
                            update=req.update or "default")
-                   for n, i in enumerate(range(0, len(u.seeds), members))]
+                   for n, seeds in enumerate(seed_groups(u.seeds, members, checkpoint_path(
+                       req.results, suite_name, u.env, u.name, [0]).parent.parent))]
     if req.update is None:
         groups = [replace(g, update=resumed_update(g)) for g in groups]
     workers, reasons = packing.workers, packing.reasons

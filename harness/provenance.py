@@ -56,3 +56,37 @@ def run_record(spec: RunSpec, command: str) -> dict[str, Any]:
         **demos_record(spec.env), "command": command, "git_sha": spec.git_sha, "versions": package_versions(),
         "python": sys.version.split()[0], "update": spec.update,
     }
+
+
+def state_digest(state: Any) -> str:
+    """sha256 (16 hex digits) of a nested state (dicts in key order, lists, tensors, numpy arrays, scalars): equal
+    digests, the same state bit for bit. ``scripts/fingerprint.py`` hashes checkpoints with it; ``harness bench train
+    checkpoint=`` the state its timed steps reached."""
+    import hashlib
+    import io
+
+    import torch
+
+    h = hashlib.sha256()
+
+    def walk(prefix: str, obj: Any) -> None:
+        if isinstance(obj, dict):
+            for k in sorted(obj, key=str):
+                walk(f"{prefix}/{k}", obj[k])
+        elif isinstance(obj, (list, tuple)):
+            for i, v in enumerate(obj):
+                walk(f"{prefix}/{i}", v)
+        elif isinstance(obj, torch.Tensor):
+            h.update(prefix.encode())
+            h.update(obj.detach().cpu().contiguous().numpy().tobytes() if obj.dtype != torch.bfloat16 else b"")
+        elif hasattr(obj, "tobytes"):  # numpy arrays and generator states
+            h.update(prefix.encode() + obj.tobytes())
+        elif obj is None or isinstance(obj, (int, float, str, bool)):
+            h.update(f"{prefix}={obj!r}".encode())
+        else:  # anything else by its pickled bytes
+            buf = io.BytesIO()
+            torch.save(obj, buf)
+            h.update(prefix.encode() + buf.getvalue())
+
+    walk("", state)
+    return h.hexdigest()[:16]

@@ -14,7 +14,6 @@ streams). ``--compare`` prints the rows that differ and exits 1 if any does.
 from __future__ import annotations
 
 import hashlib
-import io
 import json
 import os
 import subprocess
@@ -24,6 +23,8 @@ from pathlib import Path
 
 import pandas as pd
 import torch
+
+from harness.provenance import state_digest
 
 WALL_METRICS = {"steps_per_s", "wall_s", "eta_s"}
 STEPS, EVAL_EVERY, SEED_STEPS = 1500, 500, 500
@@ -42,29 +43,7 @@ def _hash_rows(paths: list[Path]) -> str:
 
 def _hash_checkpoint(path: Path) -> str:
     state = torch.load(path, map_location="cpu", weights_only=False)
-    h = hashlib.sha256()
-
-    def walk(prefix, obj):
-        if isinstance(obj, dict):
-            for k in sorted(obj, key=str):
-                walk(f"{prefix}/{k}", obj[k])
-        elif isinstance(obj, (list, tuple)):
-            for i, v in enumerate(obj):
-                walk(f"{prefix}/{i}", v)
-        elif isinstance(obj, torch.Tensor):
-            h.update(prefix.encode())
-            h.update(obj.detach().cpu().contiguous().numpy().tobytes() if obj.dtype != torch.bfloat16 else b"")
-        elif hasattr(obj, "tobytes"):  # numpy arrays and generator states
-            h.update(prefix.encode() + obj.tobytes())
-        elif obj is None or isinstance(obj, (int, float, str, bool)):
-            h.update(f"{prefix}={obj!r}".encode())
-        else:  # anything else by its pickled bytes
-            buf = io.BytesIO()
-            torch.save(obj, buf)
-            h.update(prefix.encode() + buf.getvalue())
-
-    walk("", {k: v for k, v in state.items() if k not in ("wall_s", "git_sha", "command", "versions", "time")})
-    return h.hexdigest()[:16]
+    return state_digest({k: v for k, v in state.items() if k not in ("wall_s", "git_sha", "command", "versions", "time")})
 
 
 def fingerprint(algo: str, update: str, env: str, steps: int = STEPS, eval_every: int = EVAL_EVERY) -> dict:

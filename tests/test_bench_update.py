@@ -9,6 +9,8 @@ from harness.backends import keep_freed_memory, use_allocator
 from harness.bench.update import RECORD_HEADER, measure_update, record_row
 from harness.words import ConfigError
 
+from .conftest import requires_data
+
 
 @pytest.mark.parametrize("use_trunk, products", [(True, 37), (False, 28)])
 @pytest.mark.parametrize("update", ["default", "static", "autograd"])
@@ -62,3 +64,26 @@ def test_record_appends_rows_under_one_header(tmp_path):
     assert len(rows) == 2 and "| Test CPU (AVX2) |" in rows[0]
     assert rows[0].endswith("| default | keep | 12.35 | 9.00 | 0.73 |")
     assert rows[1].endswith("| compiled | keep | 9.50 | 9.00 | 0.95 |")
+
+
+@requires_data
+def test_bench_train_from_a_checkpoint_trains_on_from_its_state(tmp_path):
+    """``harness bench train checkpoint=``: the run's own algo, env, seeds and config (run.yaml), its saved state, and
+    the same digest from the same checkpoint; a missing one is one line."""
+    from pathlib import Path
+
+    from harness.bench.train import bench_train_from
+    from harness.cli import main
+    from harness.words import UsageError
+
+    assert main(["run", "algo=medal", "env=tabletop_manipulation", "seeds=2", "members=2", "steps=300",
+                 "eval_every=100", "checkpoint_every=100", "eval_episodes=1", "all.seed_steps=100",
+                 "all.batch_size=32", f"results={tmp_path}", "workers=1"]) == 0
+    ckpt = next(Path(tmp_path).glob("**/checkpoints/seeds=0-1/checkpoint.pt"))
+    lines: list[str] = []
+    first = bench_train_from(ckpt, steps=5, device="cpu", repeats=1, log=lines.append)
+    again = bench_train_from(ckpt, steps=5, device="cpu", repeats=1, log=lambda _: None)
+    assert "at step 300" in lines[0] and "members=2" in lines[1] and "update=default" in lines[1]
+    assert first["digest"] == again["digest"] and len(first["digest"]) == 16
+    with pytest.raises(UsageError, match="not found"):
+        bench_train_from(ckpt.parent / "nope.pt", steps=5, device="cpu")

@@ -92,3 +92,27 @@ def test_cpu_training_processes_get_one_torch_thread(tmp_path):
         plan = plan_words(["algo=naive", "env=tabletop_manipulation", "seeds=2", "members=1", f"workers={workers}",
                            f"results={tmp_path}"])
         assert process_threads(plan) == 1
+
+
+@requires_data
+def test_forward_backward_cells_train_one_seed_per_cpu_process_and_checkpointed_groups_stay(tmp_path, monkeypatch):
+    """A step of MEDAL updates each seed's acting controller only: two seeds in different phases as members of one
+    process would run both controllers' updates (Algorithm.phase_split_updates). A group that has a checkpoint keeps
+    its seeds, so the run resumes instead of starting again."""
+    monkeypatch.setattr(Machine, "detect", classmethod(lambda cls: CPU2))
+    suite = tmp_path / "cells.yaml"
+    suite.write_text("seeds: 2\ncells:\n  - {algo: medal, env: tabletop_manipulation, steps: 1000}\n"
+                     "  - {algo: oracle, env: tabletop_manipulation, steps: 1000}\n")
+    words = [f"suite={suite}", f"results={tmp_path / 'r'}"]
+    plan = build_plan(RunRequest.from_words(words))
+    assert sorted((g.algo, g.seeds) for g in plan.groups) == [("medal", (0,)), ("medal", (1,)), ("oracle", (0, 1))]
+    assert any("one seed per process for medal" in r for r in plan.packing)
+    assert {g.seeds for g in build_plan(RunRequest.from_words([*words, "members=2"])).groups} == {(0, 1)}
+
+    ckpt = plan.groups[0].checkpoint_path().parent.parent / "seeds=0-1" / "checkpoint.pt"
+    ckpt.parent.mkdir(parents=True)
+    ckpt.write_bytes(b"")
+    plan = build_plan(RunRequest.from_words(words))
+    assert sorted((g.algo, g.seeds) for g in plan.groups) == [("medal", (0, 1)), ("oracle", (0, 1))]
+    assert [g.seeds for g in build_plan(RunRequest.from_words([*words, "seeds=3"])).groups if g.algo == "medal"] == [
+        (0, 1), (2,)]
