@@ -1,9 +1,11 @@
 """How ``harness run`` lays a suite onto a machine: seeds per process (``members``), processes (``workers``), env
 worker processes per process (``env_workers``) and, on a GPU node, the GPU of each process.
 
-Every member of a group is bitwise the run it would be alone (``algorithms.core.nets``), so the packing changes speed,
-never results. Values given on the command line (``members=``, ``workers=``, ``env_workers=``) always win; a suite's
-or cell's own ``members`` wins over the automatic choice.
+Every member of a group is the run it would be alone (``algorithms.core.nets``) to float rounding (batched products
+may round differently with E: 1e-8 to 5e-7 in the weights after 400 MEDAL steps, ``tests/test_split_group.py``), so
+the packing changes speed, never results beyond rounding; the same packing repeats a run bit for bit. Values given
+on the command line (``members=``, ``workers=``, ``env_workers=``) always win; a suite's or cell's own ``members``
+wins over the automatic choice.
 
 * CPU: one process per core. A group holds the suite's ``members`` (product suites: 1; cell suites: the cell's
   seeds, but one for a method that updates only each seed's acting controller, ``Algorithm.phase_split_updates``:

@@ -77,7 +77,7 @@ RUN_KEYS: dict[str, Key] = {
     "ray_address": Key("Ray cluster to join (auto or HOST:PORT), with backend=ray", shown="start one"),
     "env_workers": Key("worker processes stepping the member envs of each group (0: in the group's process; for many "
                        "seeds per process, e.g. on a GPU)", None, 0, MAX_WORKERS, shown="0 (cuda: spare cores)"),
-    "update": Key("SAC updates: default (per-member kernels; E seeds per process bitwise equal E single-seed runs), "
+    "update": Key("SAC updates: default (per-member kernels; E seeds per process equal E single-seed runs to float rounding), "
                   "static (one fixed kernel sequence, equal within rounding), compiled (static + torch.compile; CUDA "
                   "graphs on a GPU), autograd (the same losses through torch.autograd); a run resumes bit for bit only "
                   "in the mode it ran with", "default",

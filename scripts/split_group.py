@@ -5,7 +5,7 @@ each seed resumes in a process of its own (``harness run`` then plans one group 
 
 Why: a step of a forward-backward method (MEDAL, FBRL, R3L) updates only each member's acting controller, so members
 in different phases run every controller's update (docs/performance.md): one seed per process trains faster. Every
-member of a group is the run it would be alone (the default update keeps it bit for bit), so member i's part of the
+member of a group is the run it would be alone (to float rounding), so member i's part of the
 state is a single-seed run's state: per-member lists (seeds, random streams, envs, last successes) give their i-th
 item, member-major tensors (leading dimension E * k) their i-th block, and an optimizer's flat moments the i-th slice
 of each parameter's segment (algorithms.core.optim.FlatMembers). ``tests/test_split_group.py`` checks that the split

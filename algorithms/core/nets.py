@@ -1,7 +1,8 @@
 """Seed-batched ("member") network layers and per-member randomness.
 
 Every parameter carries a leading member dimension E: one process trains E independent seeds in lockstep, and member i
-of an E-member object is numerically the same object as a single-seed (E=1) one built from member i's seed.
+of an E-member object is the same object as a single-seed (E=1) one built from member i's seed: equal at
+construction, and through training to float rounding (a batched product may round differently with E).
 
 * Layers take activations shaped (E, B, features) and never mix members (batched matmuls, per-member affine).
 * Initialisation (docs/algorithms.md §3.1: Xavier-uniform weights, zero biases) draws each member's slice from that member's

@@ -7,8 +7,9 @@ is one multi-tensor kernel call over the slices of the members that update (no p
 
 Masking: members whose mask entry is False are not in the call and stay bitwise unchanged (parameters, Adam moments,
 step counters), exactly as in a single-seed run in which that member did not update at this step. Member i's slices
-have the same sizes whatever E is and are processed alone, so an E-member run reproduces E single-seed runs bit for bit
-(no dependence on where a value sits in a SIMD body or tail).
+have the same sizes whatever E is and are processed alone, so member i's optimizer step is an E=1 run's bit for bit
+(no dependence on where a value sits in a SIMD body or tail); the gradients it is given can still differ with E in
+their last bits (batched products).
 """
 
 from __future__ import annotations
