@@ -160,11 +160,13 @@ def pack(work: Sequence[Work], device: str, machine: Machine, members: int | Non
     return Packing(tuple(per), n_workers, n_env, devices, per_device, tuple(why))
 
 
-def seed_groups(seeds: list[int], members: int, checkpoints: Path) -> list[tuple[int, ...]]:
+def seed_groups(seeds: list[int], members: int, checkpoints: Path, done: set[int] = frozenset()) -> list[tuple[int, ...]]:
     """The groups (one process each) of a method's ``seeds``: a group with a checkpoint in ``checkpoints`` (its
     ``seeds=a-b`` directories) stays as it trained, whatever ``members`` says now, so its runs resume rather than
-    start again; the other seeds go ``members`` to a group, in order."""
+    start again; the other seeds go ``members`` to a group, in order. A selection that holds only some seeds of such
+    a group, unfinished (not in ``done``), is refused: alone they would start again from step 0."""
     from harness.results import CHECKPOINT_FILE
+    from harness.suites import ConfigError
 
     kept: list[tuple[int, ...]] = []
     taken: set[int] = set()
@@ -173,9 +175,15 @@ def seed_groups(seeds: list[int], members: int, checkpoints: Path) -> list[tuple
             g = tuple(int(x) for x in d.name.removeprefix("seeds=").split("-"))
         except ValueError:
             continue
-        if (d / CHECKPOINT_FILE).exists() and set(g) <= set(seeds) and not taken & set(g):
+        if not (d / CHECKPOINT_FILE).exists() or taken & set(g):
+            continue
+        if set(g) <= set(seeds):
             kept.append(g)
             taken |= set(g)
+        elif cut := sorted(set(g) & set(seeds) - set(done)):
+            raise ConfigError(f"seed(s) {', '.join(map(str, cut))} train in the group {d.name} (its checkpoint is in "
+                              f"{checkpoints}): select all its seeds (seeds={','.join(map(str, g))}), or split the "
+                              "group first (scripts/split_group.py)")
     rest = [s for s in seeds if s not in taken]
     return sorted(kept + [tuple(rest[i : i + members]) for i in range(0, len(rest), members)],
                   key=lambda g: seeds.index(g[0]))

@@ -189,7 +189,7 @@ def build_plan(req: RunRequest) -> Plan:
     left_out: list[str] = []
     units = (_cell_units if "cells" in suite else _product_units)(suite, req, left_out)
     from harness.registry import ALGORITHMS  # after the names are checked: a bad word is answered before torch loads
-    from harness.results import checkpoint_path
+    from harness.results import checkpoint_path, run_dir
 
     selected = {u.algo_class for u in units}
     stray = sorted(set(req.config) - selected - {"all"})
@@ -239,7 +239,8 @@ def build_plan(req: RunRequest) -> Plan:
                            tensorboard=req.logger == "tensorboard", env_workers=packing.env_workers,
                            update=req.update or "default")
                    for n, seeds in enumerate(seed_groups(u.seeds, members, checkpoint_path(
-                       req.results, suite_name, u.env, u.name, [0]).parent.parent))]
+                       req.results, suite_name, u.env, u.name, [0]).parent.parent, {s for s in u.seeds if finished(
+                           run_dir(req.results, suite_name, u.env, u.name, s), u.steps)}))]
     if req.update is None:
         groups = [replace(g, update=resumed_update(g)) for g in groups]
     workers, reasons = packing.workers, packing.reasons

@@ -116,3 +116,7 @@ def test_forward_backward_cells_train_one_seed_per_cpu_process_and_checkpointed_
     assert sorted((g.algo, g.seeds) for g in plan.groups) == [("medal", (0, 1)), ("oracle", (0, 1))]
     assert [g.seeds for g in build_plan(RunRequest.from_words([*words, "seeds=3"])).groups if g.algo == "medal"] == [
         (0, 1), (2,)]
+    from harness.suites import ConfigError
+
+    with pytest.raises(ConfigError, match=r"seed\(s\) 1 train in the group seeds=0-1 .* select all its seeds"):
+        build_plan(RunRequest.from_words([*words, "seeds=1,"]))  # alone, seed 1 would start again from step 0
